@@ -1,0 +1,5 @@
+import sys
+
+from cascalib.cli import main
+
+sys.exit(main())

@@ -1,0 +1,86 @@
+"""Small geometric helpers shared by the stages, formats and metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "rodrigues_to_matrix",
+    "matrix_to_rodrigues",
+    "rotation_angle_deg",
+    "rot_z",
+    "umeyama",
+    "project_to_so3",
+]
+
+
+def rodrigues_to_matrix(rvec: ArrayLike) -> NDArray[np.float64]:
+    """Rotation vector (3,) (axis times angle, radians) to a 3x3 rotation matrix."""
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    theta = np.linalg.norm(r)
+    if theta < 1e-12:
+        return np.eye(3)
+    k = r / theta
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
+
+
+def matrix_to_rodrigues(R: ArrayLike) -> NDArray[np.float64]:
+    """3x3 rotation matrix to a rotation vector (3,), robust near 0 and 180 degrees."""
+    from scipy.spatial.transform import Rotation
+
+    return np.asarray(Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec())
+
+
+def project_to_so3(M: ArrayLike) -> NDArray[np.float64]:
+    """Closest rotation matrix (Frobenius norm) to a 3x3 matrix."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def rotation_angle_deg(R: ArrayLike) -> float:
+    """Geodesic angle of a rotation matrix in degrees: ``arccos((trace(R) - 1) / 2)``."""
+    R = np.asarray(R, dtype=np.float64)
+    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(c)))
+
+
+def rot_z(angle: float) -> NDArray[np.float64]:
+    """Rotation by ``angle`` radians about the world z (up) axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def umeyama(src: ArrayLike, dst: ArrayLike, *, with_scale: bool = True
+            ) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """Least-squares similarity ``dst ~ s * R @ src + t`` (Umeyama 1991).
+
+    Parameters
+    ----------
+    src, dst : ndarray, shape (N, D)
+        Corresponding points, N >= D.
+    with_scale : bool
+        Estimate the scale (else s = 1: a rigid alignment).
+
+    Returns
+    -------
+    s : float
+    R : ndarray, shape (D, D)
+    t : ndarray, shape (D,)
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    a, b = src - mu_s, dst - mu_d
+    cov = b.T @ a / len(src)
+    U, S, Vt = np.linalg.svd(cov)
+    D = np.eye(src.shape[1])
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        D[-1, -1] = -1
+    R = U @ D @ Vt
+    var_s = (a**2).sum() / len(src)
+    s = float(np.trace(np.diag(S) @ D) / var_s) if with_scale and var_s > 0 else 1.0
+    t = mu_d - s * R @ mu_s
+    return s, R, t
