@@ -46,7 +46,7 @@ def test_trc_is_y_up_with_one_row_per_sample(tmp_path):
     wx, wy, wz = p.joints[0, 0, 0]
     assert (x, y, z) == pytest.approx((wx, wz, -wy), abs=1e-6)
     assert float(first[1]) == pytest.approx(0.0)
-    assert float(lines[7].split("\t")[1]) == pytest.approx(2.0 / 30.0)
+    assert float(lines[7].split("\t")[1]) == pytest.approx(2.0 / 30.0, abs=1e-6)
 
 
 def test_json_has_null_for_missing(tmp_path):
