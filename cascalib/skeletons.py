@@ -231,12 +231,18 @@ def get_skeleton(name: str | Skeleton) -> Skeleton:
     return SKELETONS[key]
 
 
-def _midpoint_error(kp: NDArray[np.float64], mid: int, a: int, b: int) -> float:
-    """Median distance of joint ``mid`` from the midpoint of ``a`` and ``b``, relative to |a-b|."""
+def _midpoint_distances(kp: NDArray[np.float64], mid: int, a: int, b: int
+                        ) -> NDArray[np.float64]:
+    """Distances of joint ``mid`` from the midpoint of ``a`` and ``b``, relative to |a-b|."""
     m = 0.5 * (kp[..., a, :2] + kp[..., b, :2])
     span = np.linalg.norm(kp[..., a, :2] - kp[..., b, :2], axis=-1)
     d = np.linalg.norm(kp[..., mid, :2] - m, axis=-1) / np.maximum(span, 1e-9)
-    d = d[np.isfinite(d)]
+    return d[np.isfinite(d)]
+
+
+def _midpoint_error(kp: NDArray[np.float64], mid: int, a: int, b: int) -> float:
+    """Median distance of joint ``mid`` from the midpoint of ``a`` and ``b``, relative to |a-b|."""
+    d = _midpoint_distances(kp, mid, a, b)
     return float(np.median(d)) if d.size else np.inf
 
 
@@ -244,8 +250,8 @@ def infer_skeleton(n_joints: int, keypoints: NDArray[np.float64] | None = None) 
     """Pick the skeleton from the number of joints, and from the keypoints where that is ambiguous.
 
     17 joints are COCO-17 unless the keypoints look like Human3.6M (joint 0 at the mid-point of
-    joints 1 and 4, its hips); 25 joints are BODY_25 when joint 8 lies at the mid-point of the hips
-    (9, 12), BODY_25B when joint 17 lies at the mid-point of the shoulders (5, 6).
+    joints 1 and 4, its hips); 25 joints are BODY_25 when joints 1 and 8 lie at the mid-points of
+    the shoulders (2, 5) and hips (9, 12), else BODY_25B.
 
     Parameters
     ----------
@@ -275,15 +281,20 @@ def infer_skeleton(n_joints: int, keypoints: NDArray[np.float64] | None = None) 
     if n_joints == 25:
         if keypoints is None:
             return SKELETONS["body25"]
-        e25 = _midpoint_error(keypoints, 8, 9, 12)
-        e25b = _midpoint_error(keypoints, 17, 5, 6)
-        if not (np.isfinite(e25) or np.isfinite(e25b)):
-            raise InputError(
-                "25 joints could be OpenPose BODY_25 or BODY_25B and the keypoints do not tell; "
-                "give the skeleton explicitly",
-                field="skeleton",
-            )
-        return SKELETONS["body25"] if e25 <= e25b else SKELETONS["body25b"]
+        # BODY_25 puts its neck (1) and mid-hip (8) half-way between the shoulders (2, 5) and
+        # hips (9, 12). BODY_25B's joint 17 is the *upper* neck, half a shoulder span above the
+        # shoulders, so it cannot serve as the BODY_25B test: decide on BODY_25's midpoints alone.
+        d25 = np.concatenate([_midpoint_distances(keypoints, 1, 2, 5),
+                              _midpoint_distances(keypoints, 8, 9, 12)])
+        if d25.size:
+            return SKELETONS["body25"] if np.median(d25) < 0.25 else SKELETONS["body25b"]
+        if np.isfinite(_midpoint_error(keypoints, 17, 5, 6)):
+            return SKELETONS["body25b"]
+        raise InputError(
+            "25 joints could be OpenPose BODY_25 or BODY_25B and the keypoints do not tell; "
+            "give the skeleton explicitly",
+            field="skeleton",
+        )
     return SKELETONS[by_count[n_joints][0]]
 
 
