@@ -1,0 +1,355 @@
+"""Helpers shared by the keypoint readers and writers.
+
+Every reader collects its detections as flat records (one per person and frame), checks them all
+at once with numpy, and packs them into the dense ``(n_frames, n_persons, n_joints, 3)`` array of
+:class:`~cascalib.tracks.Tracks`. Checking flat arrays keeps readers fast (no Python loop per
+joint) and lets every error name the first offending frame.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.errors import InputError
+from cascalib.skeletons import SKELETONS, Skeleton, get_skeleton, infer_skeleton, to_canonical
+from cascalib.tracks import Tracks, parse_image_size
+
+logger = logging.getLogger(__name__)
+
+#: Image size as a caller may give it: "1920x1080", (W, H), or per camera {name: size}.
+SizeArg = str | tuple[int, int] | list[int] | Mapping[str, Any] | None
+#: Frame rate as a caller may give it: one value or per camera {name: fps}.
+FpsArg = float | Mapping[str, float] | None
+
+
+def load_json(path: Path, *, camera: str | None = None) -> Any:
+    """Parse one JSON file, turning syntax errors into an :class:`InputError` with line/column."""
+    try:
+        with open(path, "rb") as fh:
+            return json.load(fh)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}",
+                         file=str(path), camera=camera) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not valid JSON text: {exc}", file=str(path), camera=camera) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror}", file=str(path), camera=camera) from None
+
+
+def default_camera(path: Path) -> str:
+    """Camera name from a file or folder name: its stem, without a Pose2Sim ``_json`` suffix."""
+    name = path.name if path.is_dir() else path.stem
+    return re.sub(r"_json$", "", name) or name
+
+
+def for_camera(value: Any, camera: str) -> Any:
+    """Pick a caller's value for one camera: a mapping is looked up by name, else used as is."""
+    if isinstance(value, Mapping):
+        return value.get(camera)
+    return value
+
+
+def resolve_image_size(from_file: Any, given: SizeArg, *, camera: str, file: Path
+                       ) -> tuple[int, int] | None:
+    """The image size stored in the file wins; the caller's is used where the file has none."""
+    caller = for_camera(given, camera)
+    caller_size = None if caller is None else parse_image_size(caller, camera=camera)
+    if from_file is None:
+        return caller_size
+    size = parse_image_size(from_file, camera=camera)
+    if caller_size is not None and caller_size != size:
+        logger.warning("%s: camera %s: the file says image size %dx%d, ignoring the given "
+                       "%dx%d", file, camera, *size, *caller_size)
+    return size
+
+
+def resolve_fps(from_file: float | None, given: FpsArg, *, camera: str, file: Path
+                ) -> float | None:
+    """The frame rate stored in the file wins; the caller's is used where the file has none."""
+    caller = for_camera(given, camera)
+    if caller is not None:
+        try:
+            caller = float(caller)
+        except (TypeError, ValueError):
+            raise InputError(f"frame rate must be a number, got {caller!r}", camera=camera,
+                             field="fps") from None
+    if from_file is None:
+        return caller
+    if caller is not None and caller != from_file:
+        logger.warning("%s: camera %s: the file says %g fps, ignoring the given %g", file,
+                       camera, from_file, caller)
+    return float(from_file)
+
+
+def as_records(rows: list[Any], frames: NDArray[np.int64], *, n_joints: int | None,
+               width: int, file: Path, camera: str, field: str) -> NDArray[np.float64]:
+    """Stack per-detection keypoint lists into an (N, J, 3) float array, checking joint counts.
+
+    Parameters
+    ----------
+    rows : list
+        Per detection, either a flat list ``[x, y, c] * J`` (``width == 0``) or a ``(J, width)``
+        nested list.
+    frames : ndarray of int, shape (N,)
+        Frame of each detection, for messages.
+    n_joints : int, optional
+        Expected joint count (from a given skeleton); else the first detection's count.
+    width : int
+        0 for flat triples; else the number of values per joint (2 or 3).
+
+    Raises
+    ------
+    InputError
+        Naming the first detection's frame whose joint count differs or whose values are not
+        numbers.
+    """
+    lengths = np.fromiter((len(r) if isinstance(r, list) else -1 for r in rows), np.int64,
+                          len(rows))
+    if width == 0:
+        bad = lengths % 3 != 0
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(f"{lengths[i]} values is not a whole number of (x, y, c) triples",
+                             file=str(file), camera=camera, frame=int(frames[i]), field=field)
+        lengths = lengths // 3
+    expect = n_joints if n_joints is not None else int(lengths[0])
+    bad = lengths != expect
+    if bad.any():
+        i = int(np.argmax(bad))
+        got = "no keypoint list" if lengths[i] < 0 else f"{lengths[i]} joints"
+        raise InputError(f"expected {expect} joints, got {got}", file=str(file), camera=camera,
+                         frame=int(frames[i]), field=field)
+    try:
+        arr = np.array(rows, dtype=np.float64)
+    except (TypeError, ValueError):
+        i = _first_non_numeric(rows)
+        raise InputError("keypoint values must be numbers", file=str(file), camera=camera,
+                         frame=int(frames[i]), field=field) from None
+    if width == 0:
+        return arr.reshape(len(rows), expect, 3)
+    if arr.ndim != 3 or arr.shape[2] != width:
+        i = _first_bad_width(rows, width)
+        raise InputError(f"each joint needs {width} values", file=str(file), camera=camera,
+                         frame=int(frames[i]), field=field)
+    return arr
+
+
+def _first_non_numeric(rows: list[Any]) -> int:
+    for i, r in enumerate(rows):
+        try:
+            np.array(r, dtype=np.float64)
+        except (TypeError, ValueError):
+            return i
+    return 0
+
+
+def _first_bad_width(rows: list[Any], width: int) -> int:
+    for i, r in enumerate(rows):
+        if any(not isinstance(v, list) or len(v) != width for v in r):
+            return i
+    return 0
+
+
+def check_values(kp: NDArray[np.float64], frames: NDArray[np.int64], *, file: Path, camera: str,
+                 field: str = "keypoints", conf_field: str | None = None) -> None:
+    """Reject NaN/inf coordinates or confidences and negative confidences, naming the frame.
+
+    Parameters
+    ----------
+    kp : ndarray, shape (N, J, 3)
+        Records as read (no missing markers converted yet).
+    frames : ndarray of int, shape (N,)
+        Frame of each record.
+    """
+    bad = ~np.isfinite(kp)
+    if bad.any():
+        i, j, c = (int(v) for v in np.argwhere(bad)[0])
+        what = ("x", "y", "confidence")[c]
+        raise InputError(f"{what} of joint {j} is {kp[i, j, c]} (NaN, infinite or null): "
+                         "detector output must be finite numbers", file=str(file), camera=camera,
+                         frame=int(frames[i]), field=conf_field if c == 2 and conf_field
+                         else field)
+    neg = kp[..., 2] < 0
+    if neg.any():
+        i, j = (int(v) for v in np.argwhere(neg)[0])
+        raise InputError(f"negative confidence {kp[i, j, 2]:g} of joint {j}", file=str(file),
+                         camera=camera, frame=int(frames[i]), field=conf_field or field)
+
+
+def zeros_to_nan(kp: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Mark joints stored as ``0, 0, 0`` missing (NaN): the detectors' "not found" marker."""
+    kp = kp.copy()
+    kp[(kp == 0).all(-1)] = np.nan
+    return kp
+
+
+def nan_to_zeros(kp: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverse of :func:`zeros_to_nan` for writing: missing joints become ``0, 0, 0``."""
+    return np.where(np.isnan(kp), 0.0, kp)
+
+
+def pick_skeleton(given: str | Skeleton | None, kp: NDArray[np.float64], *, file: Path,
+                  camera: str) -> Skeleton:
+    """The caller's skeleton (checked against the joint count) or one inferred from content.
+
+    Parameters
+    ----------
+    kp : ndarray, shape (N, J, 3)
+        All records, NaN where missing.
+    """
+    n_joints = kp.shape[1]
+    try:
+        if given is not None:
+            sk = get_skeleton(given)
+            if sk.n_joints != n_joints:
+                raise InputError(f"skeleton {sk.name} has {sk.n_joints} joints, the file has "
+                                 f"{n_joints}", field="skeleton")
+            return sk
+        return infer_skeleton(n_joints, kp)
+    except InputError as exc:
+        raise InputError(exc.message, file=str(file), camera=camera,
+                         field=exc.field or "skeleton") from None
+
+
+def pack(frames: NDArray[np.int64], kp: NDArray[np.float64], ids: NDArray[np.int64] | None,
+         n_frames: int | None = None
+         ) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+    """Pack flat records into dense arrays; person slots keep the file's order within a frame.
+
+    Parameters
+    ----------
+    frames : ndarray of int, shape (N,)
+        Frame (row) of each record, >= 0.
+    kp : ndarray, shape (N, J, 3)
+    ids : ndarray of int, shape (N,), optional
+        Track id of each record (-1 unknown).
+    n_frames : int, optional
+        Number of rows (at least ``frames.max() + 1``).
+
+    Returns
+    -------
+    keypoints : ndarray, shape (n_frames, n_persons, J, 3)
+        NaN padded.
+    track_ids : ndarray of int, shape (n_frames, n_persons), or None
+        None when no record has an id.
+    """
+    n_rows = int(frames.max()) + 1 if frames.size else 0
+    n_rows = max(n_rows, n_frames or 0)
+    order = np.argsort(frames, kind="stable")
+    f_sorted = frames[order]
+    starts = np.searchsorted(f_sorted, f_sorted, side="left")
+    slot = np.empty_like(frames)
+    slot[order] = np.arange(frames.size) - starts
+    n_persons = int(slot.max()) + 1 if frames.size else 1
+    out = np.full((n_rows, n_persons, kp.shape[1], 3), np.nan)
+    out[frames, slot] = kp
+    if ids is None or not (ids >= 0).any():
+        return out, None
+    tid = np.full((n_rows, n_persons), -1, dtype=np.int64)
+    tid[frames, slot] = ids
+    return out, tid
+
+
+def unpack(tracks: Tracks) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+    """Frame and slot of every detection (a slot with at least one joint), in frame order.
+
+    Returns
+    -------
+    frames, slots : ndarray of int, shape (N,)
+    present : ndarray of bool, shape (n_frames, n_persons)
+    """
+    present = np.isfinite(tracks.keypoints[..., 0]).any(-1)
+    frames, slots = np.nonzero(present)
+    return frames, slots, present
+
+
+def convert_skeleton(tracks: Tracks, target: str, fmt: str) -> Tracks:
+    """Re-map tracks to a format's fixed skeleton (via the canonical joints), logging the loss."""
+    sk = SKELETONS[target]
+    if tracks.skeleton.name == sk.name:
+        return tracks
+    logger.info("%s stores %s only: converting camera %s from %s", fmt, sk.name, tracks.camera,
+                tracks.skeleton.name)
+    can = to_canonical(tracks.keypoints, tracks.skeleton)
+    idx = sk.canonical_indices
+    kp = np.full(tracks.keypoints.shape[:2] + (sk.n_joints, 3), np.nan)
+    kp[..., idx >= 0, :] = can[..., idx[idx >= 0], :]
+    return tracks.with_(keypoints=kp, skeleton=sk)
+
+
+def bbox(kp: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Box ``[x1, y1, x2, y2]`` around the present joints of each detection, shape (N, 4)."""
+    with np.errstate(all="ignore"):
+        return np.stack([np.nanmin(kp[..., 0], -1), np.nanmin(kp[..., 1], -1),
+                         np.nanmax(kp[..., 0], -1), np.nanmax(kp[..., 1], -1)], -1)
+
+
+def json_default(obj: Any) -> Any:
+    """``json.dump`` fallback for numpy values inside ``Tracks.meta``."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"meta value of type {type(obj).__name__} cannot be written to JSON")
+
+
+def write_json(obj: Any, path: Path) -> None:
+    """Write compact JSON (no NaN tokens: they are not JSON)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8") as fh:
+        json.dump(obj, fh, allow_nan=False, default=json_default, separators=(",", ":"))
+
+
+def frame_numbers(values: list[Any], *, file: Path, camera: str, field: str
+                  ) -> NDArray[np.int64]:
+    """Integer frame numbers (>= 0) from a JSON field, naming the first bad record."""
+    ok = [isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in values]
+    if not all(ok):
+        i = ok.index(False)
+        raise InputError(f"frame number must be an integer >= 0, got {values[i]!r} (record {i})",
+                         file=str(file), camera=camera, field=field)
+    return np.array(values, dtype=np.int64).reshape(len(values))
+
+
+def track_numbers(values: list[Any], frames: NDArray[np.int64], *, file: Path, camera: str,
+                  field: str) -> NDArray[np.int64] | None:
+    """Integer track ids (None entries -> -1); None when no record has one."""
+    if all(v is None for v in values):
+        return None
+    ok = [v is None or (isinstance(v, int) and not isinstance(v, bool)) for v in values]
+    if not all(ok):
+        i = ok.index(False)
+        raise InputError(f"track id must be an integer, got {values[i]!r}", file=str(file),
+                         camera=camera, frame=int(frames[i]), field=field)
+    return np.array([-1 if v is None else v for v in values], dtype=np.int64)
+
+
+def require_records(n: int, *, file: Path, camera: str, field: str) -> None:
+    """Reject a file without a single detection."""
+    if n == 0:
+        raise InputError("no detections: the sequence is empty", file=str(file), camera=camera,
+                         field=field)
+
+
+def named_skeleton(skeleton: str | Skeleton, *, file: Path, camera: str | None) -> Skeleton:
+    """:func:`get_skeleton` with the file and camera in its error."""
+    try:
+        return get_skeleton(skeleton)
+    except InputError as exc:
+        raise InputError(exc.message, file=str(file), camera=camera, field="skeleton") from None
+
+
+def given_joints(skeleton: str | Skeleton | None, *, file: Path, camera: str) -> int | None:
+    """Joint count of the caller's skeleton, or None when the skeleton is to be inferred."""
+    return None if skeleton is None else named_skeleton(skeleton, file=file,
+                                                         camera=camera).n_joints
