@@ -254,7 +254,7 @@ def pack(frames: NDArray[np.int64], kp: NDArray[np.float64], ids: NDArray[np.int
     if ids is None or not (ids >= 0).any():
         return out, None
     tid = np.full((n_rows, n_persons), -1, dtype=np.int64)
-    tid[frames, slot] = ids
+    tid[frames, slot] = np.where(ids >= 0, ids, -1)  # any negative id means "unknown"
     return out, tid
 
 
