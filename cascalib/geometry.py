@@ -41,10 +41,15 @@ def project_to_so3(M: ArrayLike) -> NDArray[np.float64]:
 
 
 def rotation_angle_deg(R: ArrayLike) -> float:
-    """Geodesic angle of a rotation matrix in degrees: ``arccos((trace(R) - 1) / 2)``."""
+    """Geodesic angle of a rotation matrix in degrees: ``arccos((trace(R) - 1) / 2)``.
+
+    Computed as ``atan2(sin, cos)`` from the skew part and the trace: ``arccos`` alone loses
+    half the digits near 0 (an identity off by 1e-16 would read 1e-6 degrees).
+    """
     R = np.asarray(R, dtype=np.float64)
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.degrees(np.arccos(c)))
+    c = (np.trace(R) - 1.0) / 2.0
+    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return float(np.degrees(np.arctan2(s, c)))
 
 
 def rot_z(angle: float) -> NDArray[np.float64]:
