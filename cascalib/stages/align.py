@@ -1,0 +1,372 @@
+"""Stages II-IV: put all cameras on one ground plane and one clock.
+
+``align_cameras`` ties the cascade together:
+
+1. ground trajectories per camera (:mod:`~cascalib.stages.ground`);
+2. for every camera pair: offset candidates from the joint offset/rotation vote
+   (:mod:`~cascalib.stages.sync`), each verified by trimmed ICP (:mod:`~cascalib.stages.icp`,
+   with the paper's brute-force rotation search of :mod:`~cascalib.stages.rotation` as fallback
+   initialisation); the best is refined to a sub-frame offset, a rate ratio and a 2D similarity;
+3. globally consistent clocks from all pairs (robust L1 over the pair graph, so that one wrong
+   pair is outvoted by the cycles through the other cameras) and globally consistent ground
+   alignments (robust least squares over every accepted pair's matched points);
+4. each camera moved from its own plane frame into the reference camera's.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from cascalib.calibration import Calibration
+from cascalib.camera import Camera
+from cascalib.errors import EstimationFailed, InputError
+from cascalib.geometry import rot_z
+from cascalib.stages.align_config import AlignConfig
+from cascalib.stages.ground import GroundTracks, ground_trajectories
+from cascalib.stages.icp import (
+    IcpResult,
+    Lanes,
+    Similarity2D,
+    SyncFit,
+    dense_lanes,
+    icp_pair,
+    refine_sync,
+)
+from cascalib.stages.rotation import rotation_search
+from cascalib.stages.sync import GridTrack, SyncCurve, resample_tracks, search_offsets, solve_time
+from cascalib.tracks import Tracks
+
+__all__ = ["AlignConfig", "PairAlignment", "AlignmentResult", "align_cameras"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PairAlignment:
+    """Everything known about one camera pair (A = ``cameras[i]``, B = ``cameras[j]``).
+
+    Grid times are reference frames under the fps prior: ``u_a = rate * u_b + offset``.
+    ``icp_scores`` holds the ICP evidence of each candidate of ``curve`` (same order);
+    ``ambiguity`` = second-best over best evidence; ``accepted``: kept by the global solve.
+    """
+
+    i: int
+    j: int
+    curve: SyncCurve
+    icp_scores: list[float]
+    chosen: int
+    fit: SyncFit | None
+    ambiguity: float
+    accepted: bool = False
+
+
+@dataclass(frozen=True)
+class AlignmentResult:
+    """Output of :func:`align_cameras`.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        Cameras in the reference camera's plane frame (z up, ground z = 0, metres from the
+        height prior) with ``time_offset`` / ``time_rate`` per the time convention.
+    confidence : dict of str to float
+        Per camera, in [0, 1]: 1 - ambiguity of its best accepted pair (reference: 1).
+    flags : dict of str to list of str
+        Per camera: ``"ambiguous"``, ``"not_aligned"``, ``"rejected_pair:<other>"``.
+    pairs : list of PairAlignment
+        Pairwise results incl. the sync cost curves (for plots).
+    ground : list of GroundTracks
+        Ground trajectories per camera in its own plane frame.
+    transforms : list of Similarity2D
+        Per camera, own plane frame -> reference plane frame.
+    """
+
+    calibration: Calibration
+    confidence: dict[str, float]
+    flags: dict[str, list[str]]
+    pairs: list[PairAlignment]
+    ground: list[GroundTracks]
+    transforms: list[Similarity2D]
+    diagnostics: dict[str, object] = field(default_factory=dict)
+
+
+def _fps(tracks: Tracks, camera: Camera) -> float | None:
+    if tracks.fps is not None:
+        return float(tracks.fps)
+    if tracks.timestamps is not None:
+        d = np.diff(tracks.timestamps[np.isfinite(tracks.timestamps)])
+        if d.size:
+            return float(1.0 / np.median(d))
+    return camera.fps
+
+
+def _check_inputs(tracks: list[Tracks], cams: list[Camera], reference: str | int | None) -> int:
+    if len(tracks) != len(cams):
+        raise InputError(f"{len(tracks)} tracks for {len(cams)} plane cameras",
+                         field="plane_cameras")
+    if len(tracks) < 2:
+        raise InputError("alignment needs at least two cameras", field="tracks")
+    for t, c in zip(tracks, cams, strict=True):
+        if t.camera != c.name:
+            raise InputError(f"tracks of camera {t.camera!r} paired with plane camera "
+                             f"{c.name!r}: give them in the same order", camera=t.camera)
+    if reference is None:
+        return 0
+    if isinstance(reference, int):
+        if not 0 <= reference < len(cams):
+            raise InputError(f"reference index {reference} out of range", field="reference")
+        return reference
+    names = [c.name for c in cams]
+    if reference not in names:
+        raise InputError(f"reference camera {reference!r} is not one of {names}",
+                         field="reference")
+    return names.index(reference)
+
+
+def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) -> GroundTracks:
+    per_frame = cfg.max_speed / (fps or 30.0)
+    return ground_trajectories(
+        tracks, cam, foot_height=cfg.foot_height, max_range=cfg.max_range,
+        min_confidence=cfg.min_confidence, dbscan_eps=cfg.dbscan_eps,
+        dbscan_min_samples=cfg.dbscan_min_samples,
+        dbscan_min_cluster_fraction=cfg.dbscan_min_cluster_fraction, max_step=per_frame,
+        min_length=cfg.min_tracklet_frames, jump_threshold=cfg.jump_threshold)
+
+
+def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
+                lanes: list[Lanes], fps_ref: float, cfg: AlignConfig,
+                rng: np.random.Generator) -> PairAlignment:
+    """Offset candidates, ICP verification and continuous refinement for one pair."""
+    sr = cfg.scale_range if cfg.estimate_scale else 1.0
+    longest = max(coarse[i].length, coarse[j].length) * coarse[i].step
+    curve = search_offsets(
+        coarse[i], coarse[j], max_offset=cfg.max_offset_fraction * longest,
+        chunk_seconds_frames=int(cfg.chunk_seconds * fps_ref),
+        min_overlap=max(5, int(cfg.min_overlap_seconds * fps_ref / coarse[i].step)),
+        min_spread=cfg.min_spread, sigma=cfg.sigma, scale_range=sr,
+        n_candidates=cfg.n_candidates, nms_frames=cfg.nms_seconds * fps_ref)
+    results = [_icp(i, j, int(round(c.offset)), c.angle, lanes, cfg, sr)
+               for c in curve.candidates]
+    if not any(_plausible(r, cfg) for r in results) and curve.candidates:
+        # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
+        k0 = 0
+        results[k0] = _rotation_fallback(i, j, int(round(curve.candidates[k0].offset)),
+                                         results[k0], lanes, cfg, sr, rng)
+    scores = [r.score if r is not None else 0.0 for r in results]
+    if not scores or max(scores) <= 0:
+        return PairAlignment(i, j, curve, scores, -1, None, 1.0)
+    k = int(np.argmax(scores))
+    rest = sorted(scores, reverse=True)
+    ambiguity = rest[1] / rest[0] if len(rest) > 1 else curve.peak_ratio
+    best = results[k]
+    assert best is not None
+    fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best,
+                      int(round(curve.candidates[k].offset)), sigma=cfg.refine_sigma,
+                      estimate_rate=cfg.estimate_rate, scale_range=sr, rng=rng)
+    logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
+                fine[i].camera, fine[j].camera, fit.offset, fit.rate,
+                np.degrees(fit.transform.angle), fit.rms, ambiguity)
+    return PairAlignment(i, j, curve, scores, k, fit, float(ambiguity))
+
+
+def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
+         sr: float) -> IcpResult | None:
+    return icp_pair(lanes[i], lanes[j], offset, angle, sigma=cfg.sigma, gate=cfg.icp_gate,
+                    min_gate=cfg.icp_min_gate, scale_range=sr, trim=cfg.icp_trim,
+                    max_frames=cfg.icp_max_frames)
+
+
+def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:
+    return res is not None and res.rms < 2 * cfg.sigma and res.n_matches >= 50
+
+
+def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: list[Lanes],
+                       cfg: AlignConfig, sr: float, rng: np.random.Generator
+                       ) -> IcpResult | None:
+    """Re-initialise the ICP by the brute-force rotation search (paper, "2D Rotation Search")."""
+    pa = _xyt(lanes[i], 0)
+    pb = _xyt(lanes[j], offset)
+    if len(pa) < 10 or len(pb) < 10:
+        return res
+    rs = rotation_search(pa, pb, step_deg=cfg.rotation_step_deg, rng=rng)
+    alt = _icp(i, j, offset, rs.angle, lanes, cfg, sr)
+    if res is None or (alt is not None and alt.score > res.score):
+        return alt
+    return res
+
+
+def _xyt(lanes: Lanes, offset: int) -> NDArray[np.float64]:
+    """(x, y, synchronised time) of every lane point; time shifted by ``offset``."""
+    g, k = np.nonzero(np.isfinite(lanes.pos[..., 0]))
+    return np.c_[lanes.pos[g, k], g + offset]
+
+
+def _global_time(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    usable = [p for p in pairs if p.fit is not None]
+    edges = [(p.i, p.j, p.fit.offset, np.log(p.fit.rate),  # type: ignore[union-attr]
+              max(0.05, 1.0 - p.ambiguity)) for p in usable]
+    a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)
+    accepted = np.zeros(len(pairs), bool)
+    idx = [k for k, p in enumerate(pairs) if p.fit is not None]
+    accepted[idx] = ok
+    return a, b, accepted
+
+
+def _spanning_init(n: int, ref: int, pairs: list[PairAlignment]) -> list[Similarity2D | None]:
+    """Chain pairwise similarities from the reference along the most confident pairs."""
+    T: list[Similarity2D | None] = [None] * n
+    T[ref] = Similarity2D(0.0, np.zeros(2))
+    order = sorted(pairs, key=lambda p: p.ambiguity)
+    changed = True
+    while changed:
+        changed = False
+        for p in order:
+            fit = p.fit
+            assert fit is not None
+            if T[p.i] is not None and T[p.j] is None:
+                T[p.j] = T[p.i].compose(fit.transform)  # type: ignore[union-attr]
+                changed = True
+            elif T[p.j] is not None and T[p.i] is None:
+                T[p.i] = T[p.j].compose(fit.transform.inverse())  # type: ignore[union-attr]
+                changed = True
+    return T
+
+
+def _global_space(n: int, ref: int, pairs: list[PairAlignment], scale_range: float
+                  ) -> list[Similarity2D | None]:
+    """Robust joint fit of all ground similarities to every accepted pair's matched points."""
+    T0 = _spanning_init(n, ref, pairs)
+    free = [c for c in range(n) if c != ref and T0[c] is not None]
+    if not free or len(pairs) < 2:
+        return T0
+    pos = {c: k for k, c in enumerate(free)}
+
+    def unpack(x: NDArray[np.float64], c: int) -> Similarity2D:
+        if c == ref:
+            return Similarity2D(0.0, np.zeros(2))
+        v = x[4 * pos[c]: 4 * pos[c] + 4]
+        return Similarity2D(float(v[0]), v[1:3], float(np.exp(v[3])))
+
+    def resid(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = []
+        for p in pairs:
+            f = p.fit
+            assert f is not None
+            w = np.sqrt(max(0.05, 1.0 - p.ambiguity))
+            out.append(w * (unpack(x, p.i).apply(f.pairs_a)
+                            - unpack(x, p.j).apply(f.pairs_b)).ravel())
+        return np.concatenate(out)
+
+    x0 = np.concatenate([[T0[c].angle, *T0[c].t, np.log(T0[c].scale)]  # type: ignore[union-attr]
+                         for c in free])
+    ls = np.log(scale_range) + 1e-9
+    lo = np.tile([-np.inf, -np.inf, -np.inf, -ls], len(free))
+    hi = np.tile([np.inf, np.inf, np.inf, ls], len(free))
+    sol = least_squares(resid, np.clip(x0, lo + 1e-12, hi - 1e-12), bounds=(lo, hi),
+                        loss="soft_l1", f_scale=0.1)
+    return [unpack(sol.x, c) if (c == ref or c in pos) else None for c in range(n)]
+
+
+def _place(cam: Camera, T: Similarity2D) -> Camera:
+    """Move a camera from its own plane frame by ``X' = s Rz X + (t, 0)``."""
+    Rz = rot_z(T.angle)
+    center = T.scale * Rz @ cam.center + np.r_[T.t, 0.0]
+    R = cam.R @ Rz.T
+    return cam.with_(R=R, t=-R @ center)
+
+
+def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
+                  config: AlignConfig | None = None, *, reference: str | int | None = None,
+                  rng: np.random.Generator | int | None = None) -> AlignmentResult:
+    """Synchronise all cameras and place them on the reference camera's ground plane.
+
+    Parameters
+    ----------
+    tracks : list of Tracks
+        One per camera.
+    plane_cameras : list of Camera
+        Same order; each camera in its own plane frame (stage I ``to_camera()``).
+    config : AlignConfig, optional
+    reference : str or int, optional
+        Reference camera (name or index); default the first.
+    rng : Generator or int, optional
+
+    Returns
+    -------
+    AlignmentResult
+
+    Raises
+    ------
+    InputError
+        Mismatched inputs.
+    EstimationFailed
+        No camera could be aligned with the reference.
+    """
+    cfg = config or AlignConfig()
+    rng = np.random.default_rng(rng)
+    ref = _check_inputs(tracks, plane_cameras, reference)
+    n = len(tracks)
+    fps = [_fps(t, c) for t, c in zip(tracks, plane_cameras, strict=True)]
+    known = fps[ref] is not None and all(f is not None for f in fps)
+    fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0
+    rho = [fps_ref / f if known else 1.0 for f in fps]  # type: ignore[operator]
+    ground = [_ground(t, c, f, cfg) for t, c, f in zip(tracks, plane_cameras, fps, strict=True)]
+    step = max(1, int(round(fps_ref / cfg.coarse_rate)))
+    coarse = [resample_tracks(g, r, float(step)) for g, r in zip(ground, rho, strict=True)]
+    fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
+            for g, r, f in zip(ground, rho, fps, strict=True)]
+    lanes = [dense_lanes(f) for f in fine]
+    pairs = [_align_pair(i, j, coarse, fine, lanes, fps_ref, cfg, rng)
+             for i in range(n) for j in range(i + 1, n)]
+    a, b, accepted = _global_time(n, ref, pairs, cfg)
+    pairs = [PairAlignment(p.i, p.j, p.curve, p.icp_scores, p.chosen, p.fit, p.ambiguity,
+                           bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]
+    good = [p for p in pairs if p.accepted]
+    sr = cfg.scale_range if cfg.estimate_scale else 1.0
+    T = _global_space(n, ref, good, sr)
+    if all(T[c] is None for c in range(n) if c != ref):
+        raise EstimationFailed("no camera could be synchronised and aligned with the "
+                               "reference: the cameras may not see the same people, or too "
+                               "few walking people were detected", camera=tracks[ref].camera)
+    return _result(tracks, plane_cameras, ground, pairs, T, a, b, rho, fps, ref, cfg)
+
+
+def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks],
+            pairs: list[PairAlignment], T: list[Similarity2D | None], a: NDArray[np.float64],
+            b: NDArray[np.float64], rho: list[float], fps: list[float | None], ref: int,
+            cfg: AlignConfig) -> AlignmentResult:
+    n = len(cams)
+    out_cams, confidence, flags = [], {}, {}
+    transforms = []
+    for c in range(n):
+        name = cams[c].name
+        inc = [p for p in pairs if c in (p.i, p.j)]
+        acc = [p for p in inc if p.accepted]
+        fl = [f"rejected_pair:{cams[p.j if p.i == c else p.i].name}" for p in inc
+              if p.fit is not None and not p.accepted]
+        Tc = T[c]
+        if Tc is None:
+            fl.append("not_aligned")
+            Tc = Similarity2D(0.0, np.zeros(2))
+        conf = 1.0 if c == ref else max((1.0 - p.ambiguity for p in acc), default=0.0)
+        if c != ref and acc and min(p.ambiguity for p in acc) > cfg.ambiguity_ratio:
+            fl.append("ambiguous")
+        cam = _place(cams[c], Tc).with_(fps=fps[c], time_offset=float(b[c]),
+                                        time_rate=float(a[c] * rho[c]))
+        if T[c] is None:
+            cam = cam.with_(time_offset=0.0, time_rate=float(rho[c]))
+        out_cams.append(cam)
+        transforms.append(Tc)
+        confidence[name] = float(conf)
+        flags[name] = fl
+        if fl:
+            logger.warning("camera %s: %s", name, ", ".join(fl))
+    calib = Calibration(out_cams, reference_camera=cams[ref].name,
+                        quality={"alignment": {"confidence": confidence, "flags": flags}})
+    return AlignmentResult(calib, confidence, flags, pairs, ground, transforms)

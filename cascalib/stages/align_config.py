@@ -1,0 +1,94 @@
+"""Configuration of stages II-IV (ground trajectories, time sync, rotation search, ICP)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["AlignConfig"]
+
+
+class AlignConfig(BaseModel):
+    """Stages II-IV settings. Units: metres (m), reference-camera frames, seconds (s)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    # -- ground-plane trajectories (paper: "Relating multiple cameras through their ground
+    #    planes" and "Filtering") ------------------------------------------------------------------
+    foot_height: float = Field(
+        0.066, ge=0, description="Height (m) of the ankle midpoint above the stage-I ground "
+        "plane when back-projecting feet: 0.039 x 1.70 m (Drillis & Contini). A wrong value "
+        "scales each camera's ground view radially, which the similarity alignment absorbs.")
+    min_confidence: float = Field(
+        0.05, ge=0, le=1, description="Foot joints below this detector confidence are ignored.")
+    max_range: float = Field(
+        60.0, gt=0, description="Ground points farther (m) from the point below the camera are "
+        "dropped: near the horizon one pixel moves them by metres.")
+    dbscan_eps: float = Field(
+        0.6, gt=0, description="DBSCAN radius (m) of the ground-point outlier filter (paper: "
+        "DBSCAN keeping the largest cluster; we keep every cluster above "
+        "dbscan_min_cluster_fraction).")
+    dbscan_min_samples: int = Field(8, ge=1, description="DBSCAN core-point neighbourhood size.")
+    dbscan_min_cluster_fraction: float = Field(
+        0.02, ge=0, le=1, description="Clusters holding less than this fraction of the points "
+        "are outliers.")
+    max_speed: float = Field(
+        8.0, gt=0, description="Fastest plausible foot speed (m/s); faster steps split a "
+        "tracklet (identity switch or outlier).")
+    jump_threshold: float = Field(
+        0.5, gt=0, description="A point farther (m) than this from the running median of its "
+        "tracklet is an outlier.")
+    min_tracklet_frames: int = Field(
+        10, ge=2, description="Shorter tracklets are dropped (native frames).")
+
+    # -- time synchronisation (paper: "1D Temporal Search") ------------------------------------
+    coarse_rate: float = Field(
+        15.0, gt=0, description="Sampling rate (Hz) of the coarse offset search grid; walking "
+        "is smooth enough that 15 Hz loses nothing and halves the work at 30 fps.")
+    chunk_seconds: float = Field(
+        6.0, gt=0, description="Length (s) of the trajectory chunks that vote for offsets.")
+    min_overlap_seconds: float = Field(
+        1.5, gt=0, description="Least overlap (s) of a chunk with a tracklet of the other camera "
+        "for the chunk to vote.")
+    min_spread: float = Field(
+        0.3, ge=0, description="Chunks whose points spread less (m, RMS) do not vote: a person "
+        "standing still says nothing about time.")
+    sigma: float = Field(
+        0.2, gt=0, description="Residual scale (m) of the vote and verification kernels "
+        "exp(-r^2 / 2 sigma^2): above detection noise, below lap-to-lap path differences.")
+    max_offset_fraction: float = Field(
+        1.0, gt=0, le=1, description="Largest |offset| searched as a fraction of the longer "
+        "sequence (paper: one third; we search every offset with enough overlap).")
+    n_candidates: int = Field(
+        3, ge=1, description="Offset peaks verified by ICP per camera pair.")
+    nms_seconds: float = Field(
+        1.0, gt=0, description="Minimum separation (s) of two candidate peaks.")
+    estimate_rate: bool = Field(
+        True, description="Estimate the residual frame-rate ratio on top of the fps prior.")
+    offset_tolerance: float = Field(
+        2.0, gt=0, description="Pairs whose offset disagrees with the globally consistent "
+        "solution by more than this (frames) are rejected (cycle consistency).")
+    ambiguity_ratio: float = Field(
+        0.8, gt=0, le=1, description="A pair whose second-best candidate scores above this "
+        "fraction of the best is flagged ambiguous.")
+
+    # -- rotation search and ICP (paper: "2D Rotation Search", "Iterative Closest Point") ------
+    estimate_scale: bool = Field(
+        True, description="Align ground planes by a 2D similarity instead of a rigid motion, "
+        "correcting each camera's stage-I metric scale relative to the reference.")
+    scale_range: float = Field(
+        1.3, ge=1, description="Largest relative scale correction (and 1 / smallest).")
+    icp_gate: float = Field(
+        1.5, gt=0, description="Initial association gate (m) of the ICP; shrinks to 4 x RMS.")
+    icp_min_gate: float = Field(0.3, gt=0, description="Smallest association gate (m).")
+    icp_trim: float = Field(
+        0.9, gt=0, le=1, description="Fraction of gated matches kept in each ICP fit.")
+    icp_max_frames: int = Field(
+        1500, ge=50, description="Frames subsampled for the ICP (speed).")
+    rotation_step_deg: float = Field(
+        5.0, gt=0, description="Angle step of the brute-force rotation search fallback (paper: "
+        "all angles 0-360).")
+    smooth_seconds: float = Field(
+        0.1, ge=0, description="Gaussian smoothing (s) of the trajectories before the sub-frame "
+        "fit; removes the half-frame bias of interpolating noisy samples.")
+    refine_sigma: float = Field(
+        0.1, gt=0, description="Soft-L1 scale (m) of the sub-frame offset / rate fit.")

@@ -1,0 +1,307 @@
+"""Stage II input: ground-plane trajectories of the people seen by one camera.
+
+Each camera's stage-I result is a camera in its *own* plane frame (ground z = 0, yaw and xy
+arbitrary). Back-projecting the feet of every detection onto that plane gives a bird's-eye view
+of the scene that differs from the reference camera's view only by a 2D rigid (or similarity)
+transform and a time shift (paper, "Relating multiple cameras through their ground planes").
+
+The points are cleaned (range gate, DBSCAN, temporal jump test) and linked into *tracklets*:
+runs of one person over consecutive frames, the unit every later step matches between cameras.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import median_filter
+from scipy.optimize import linear_sum_assignment
+from sklearn.cluster import DBSCAN
+
+from cascalib.camera import Camera
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.tracks import Tracks
+
+__all__ = ["Tracklet", "GroundTracks", "foot_pixels", "ground_points", "remove_outliers",
+           "link_tracklets", "ground_trajectories"]
+
+logger = logging.getLogger(__name__)
+
+_FOOT_JOINTS = (("left_ankle", "right_ankle"), ("left_heel", "right_heel"),
+                ("left_big_toe", "right_big_toe"))
+
+
+@dataclass(frozen=True)
+class Tracklet:
+    """One person followed over (nearly) consecutive frames of one camera.
+
+    Parameters
+    ----------
+    frames : ndarray of int, shape (n,)
+        Increasing native frame indices of the camera.
+    xy : ndarray, shape (n, 2)
+        Foot position on the camera's own ground plane (metres).
+    slot : ndarray of int, shape (n,)
+        Person slot of the detection in ``Tracks.keypoints``.
+    """
+
+    frames: NDArray[np.int64]
+    xy: NDArray[np.float64]
+    slot: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.frames.size)
+
+
+@dataclass(frozen=True)
+class GroundTracks:
+    """Ground-plane trajectories of one camera.
+
+    Parameters
+    ----------
+    camera : str
+    n_frames : int
+        Number of frames of the camera's video.
+    xy : ndarray, shape (n_frames, n_persons, 2)
+        Cleaned foot positions per frame and slot, NaN where missing or rejected.
+    tracklets : list of Tracklet
+    n_outliers : int
+        Points rejected by the range gate, DBSCAN and the jump test.
+    """
+
+    camera: str
+    n_frames: int
+    xy: NDArray[np.float64]
+    tracklets: list[Tracklet]
+    n_outliers: int
+
+
+def foot_pixels(tracks: Tracks, min_confidence: float = 0.0) -> NDArray[np.float64]:
+    """Foot pixel per detection: midpoint of the two ankles, or the one ankle seen.
+
+    Falls back to heels, then big toes, for skeletons or frames without ankles.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, n_persons, 2)
+        NaN where no foot joint is seen with confidence above ``min_confidence``.
+    """
+    can = tracks.canonical()
+    out = np.full(can.shape[:2] + (2,), np.nan)
+    for left, right in _FOOT_JOINTS:
+        pair = can[:, :, [CANONICAL_INDEX[left], CANONICAL_INDEX[right]], :]
+        ok = np.isfinite(pair[..., 0]) & (np.nan_to_num(pair[..., 2], nan=-1.0) > min_confidence)
+        xy = np.where(ok[..., None], pair[..., :2], np.nan)
+        n = ok.sum(-1)[..., None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mid = np.where(n > 0, np.nansum(xy, axis=2) / n, np.nan)
+        fill = np.isnan(out[..., 0]) & np.isfinite(mid[..., 0])
+        out[fill] = mid[fill]
+    return out
+
+
+def ground_points(tracks: Tracks, plane_camera: Camera, *, foot_height: float = 0.0,
+                  max_range: float = 60.0, min_confidence: float = 0.0) -> NDArray[np.float64]:
+    """Back-project the feet onto the camera's own ground plane.
+
+    Parameters
+    ----------
+    tracks : Tracks
+    plane_camera : Camera
+        The camera in its own plane frame (stage I).
+    foot_height : float
+        Height of the foot joint above the plane stage I fitted (metres).
+    max_range : float
+        Points farther than this from the point below the camera are rejected: near the horizon
+        a pixel of noise moves the point by metres.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, n_persons, 2)
+    """
+    uv = foot_pixels(tracks, min_confidence)
+    pts = plane_camera.backproject_to_plane(uv, z=foot_height)[..., :2]
+    c = plane_camera.center[:2]
+    with np.errstate(invalid="ignore"):
+        far = np.linalg.norm(pts - c, axis=-1) > max_range
+    pts[far] = np.nan
+    return pts
+
+
+def remove_outliers(xy: NDArray[np.float64], *, eps: float = 0.6, min_samples: int = 8,
+                    min_cluster_fraction: float = 0.02) -> NDArray[np.bool_]:
+    """Density-based rejection of ground points (paper: DBSCAN, "Filtering").
+
+    Unlike the paper, which keeps only the largest cluster, every cluster holding at least
+    ``min_cluster_fraction`` of the points is kept, so that people walking in separate areas
+    of the scene all survive.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (..., 2)
+        Points, NaN where missing.
+
+    Returns
+    -------
+    ndarray of bool, shape (...)
+        True for kept points (False for NaN input).
+    """
+    flat = xy.reshape(-1, 2)
+    ok = np.isfinite(flat).all(1)
+    keep = np.zeros(len(flat), bool)
+    pts = flat[ok]
+    if len(pts) < min_samples:
+        keep[ok] = True
+        return keep.reshape(xy.shape[:-1])
+    if len(pts) > 40000:  # DBSCAN memory grows with density: grid-quantise heavy inputs first
+        q = np.round(pts / (eps / 4)).astype(np.int64)
+        uq, inv, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.ravel()
+        db = DBSCAN(eps=eps, min_samples=min_samples).fit(uq * (eps / 4), sample_weight=counts)
+        labels = db.labels_[inv]
+    else:
+        labels = DBSCAN(eps=eps, min_samples=min_samples).fit(pts).labels_
+    good = labels >= 0
+    if good.any():
+        ids, counts = np.unique(labels[good], return_counts=True)
+        big = ids[counts >= min_cluster_fraction * len(pts)]
+        good &= np.isin(labels, big)
+    keep[np.flatnonzero(ok)[good]] = True
+    return keep.reshape(xy.shape[:-1])
+
+
+def _split_runs(frames: NDArray[np.int64], xy: NDArray[np.float64], max_gap: int,
+                max_step: float) -> list[NDArray[np.int64]]:
+    """Index runs of one id split where frames jump by more than ``max_gap`` or the position
+    moves faster than ``max_step`` metres per frame (an identity switch)."""
+    if frames.size == 0:
+        return []
+    df = np.diff(frames)
+    dist = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    cut = (df > max_gap) | (dist > max_step * df)
+    starts = np.r_[0, np.flatnonzero(cut) + 1]
+    ends = np.r_[starts[1:], frames.size]
+    return [np.arange(s, e) for s, e in zip(starts, ends, strict=True)]
+
+
+def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None, *,
+                   max_gap: int = 3, max_step: float = 0.35, min_length: int = 10,
+                   ) -> list[Tracklet]:
+    """Link per-frame ground points into tracklets.
+
+    With detector track ids the ids are followed and only split at gaps and implausible jumps;
+    without them consecutive frames are linked by Hungarian matching of positions (gated by
+    ``max_step`` metres per frame).
+
+    Parameters
+    ----------
+    xy : ndarray, shape (n_frames, n_persons, 2)
+    track_ids : ndarray of int, shape (n_frames, n_persons), optional
+
+    Returns
+    -------
+    list of Tracklet, each at least ``min_length`` detections long.
+    """
+    n_f, n_p = xy.shape[:2]
+    ok = np.isfinite(xy).all(-1)
+    if track_ids is None or not (track_ids[ok] >= 0).any():
+        ids = _hungarian_ids(xy, ok, max_gap, max_step)
+    else:
+        ids = np.where(ok & (track_ids >= 0), track_ids, -1)
+        # detections without an id get fresh singleton ids (dropped below as too short)
+        lonely = ok & (ids < 0)
+        ids[lonely] = ids.max() + 1 + np.arange(lonely.sum())
+    out: list[Tracklet] = []
+    ff, pp = np.nonzero(ids >= 0)
+    order = np.lexsort((ff, ids[ff, pp]))
+    ff, pp = ff[order], pp[order]
+    lab = ids[ff, pp]
+    bounds = np.r_[0, np.flatnonzero(np.diff(lab)) + 1, lab.size]
+    for s, e in zip(bounds[:-1], bounds[1:], strict=True):
+        f, p = ff[s:e], pp[s:e]
+        # one id twice in a frame: keep the first slot
+        uniq = np.r_[True, np.diff(f) > 0]
+        f, p = f[uniq], p[uniq]
+        pts = xy[f, p]
+        for run in _split_runs(f, pts, max_gap, max_step):
+            if run.size >= min_length:
+                out.append(Tracklet(f[run].astype(np.int64), pts[run], p[run].astype(np.int64)))
+    return out
+
+
+def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
+                   max_step: float) -> NDArray[np.int64]:
+    """Frame-to-frame linking by optimal assignment; ids (n_frames, n_persons), -1 missing."""
+    n_f, n_p = ok.shape
+    ids = np.full((n_f, n_p), -1, np.int64)
+    active: dict[int, tuple[int, NDArray[np.float64]]] = {}  # id -> (last frame, last xy)
+    next_id = 0
+    for f in range(n_f):
+        cur = np.flatnonzero(ok[f])
+        if cur.size == 0:
+            continue
+        live = [k for k, (lf, _) in active.items() if f - lf <= max_gap]
+        if live:
+            prev = np.array([active[k][1] for k in live])
+            gaps = np.array([f - active[k][0] for k in live], float)
+            d = np.linalg.norm(xy[f, cur][:, None] - prev[None], axis=-1)
+            cost = np.where(d <= max_step * gaps[None], d, 1e6)
+            r, c = linear_sum_assignment(cost)
+            good = cost[r, c] < 1e6
+            for i, j in zip(r[good], c[good], strict=True):
+                ids[f, cur[i]] = live[j]
+        for i in cur:
+            if ids[f, i] < 0:
+                ids[f, i] = next_id
+                next_id += 1
+            active[int(ids[f, i])] = (f, xy[f, i])
+    return ids
+
+
+def _jump_outliers(tracklet_xy: NDArray[np.float64], window: int, threshold: float
+                   ) -> NDArray[np.bool_]:
+    """Points farther than ``threshold`` from the running median of their tracklet."""
+    if len(tracklet_xy) < 3:
+        return np.zeros(len(tracklet_xy), bool)
+    w = min(window, len(tracklet_xy) | 1)
+    med = np.stack([median_filter(tracklet_xy[:, k], size=w, mode="nearest") for k in (0, 1)], 1)
+    return np.linalg.norm(tracklet_xy - med, axis=1) > threshold
+
+
+def ground_trajectories(tracks: Tracks, plane_camera: Camera, *, foot_height: float = 0.0,
+                        max_range: float = 60.0, min_confidence: float = 0.0,
+                        dbscan_eps: float = 0.6, dbscan_min_samples: int = 8,
+                        dbscan_min_cluster_fraction: float = 0.02,
+                        max_step: float = 0.35, max_gap: int = 3, min_length: int = 10,
+                        jump_threshold: float = 0.5) -> GroundTracks:
+    """Foot trajectories of one camera on its own ground plane, cleaned and linked.
+
+    ``max_step`` (metres per frame) and ``jump_threshold`` (metres) are for the camera's own
+    frame rate; 0.35 m per frame is 10 m/s at 30 fps.
+
+    Returns
+    -------
+    GroundTracks
+    """
+    raw = ground_points(tracks, plane_camera, foot_height=foot_height, max_range=max_range,
+                        min_confidence=min_confidence)
+    n_raw = int(np.isfinite(raw).all(-1).sum())
+    keep = remove_outliers(raw, eps=dbscan_eps, min_samples=dbscan_min_samples,
+                           min_cluster_fraction=dbscan_min_cluster_fraction)
+    xy = np.where(keep[..., None], raw, np.nan)
+    tls = link_tracklets(xy, tracks.track_ids, max_gap=max_gap, max_step=max_step,
+                         min_length=min_length)
+    clean = np.full_like(xy, np.nan)
+    out: list[Tracklet] = []
+    for tl in tls:
+        bad = _jump_outliers(tl.xy, 9, jump_threshold)
+        if (~bad).sum() >= min_length:
+            tl = Tracklet(tl.frames[~bad], tl.xy[~bad], tl.slot[~bad])
+            clean[tl.frames, tl.slot] = tl.xy
+            out.append(tl)
+    n_kept = int(np.isfinite(clean).all(-1).sum())
+    logger.debug("camera %s: %d ground points, %d kept in %d tracklets", tracks.camera, n_raw,
+                 n_kept, len(out))
+    return GroundTracks(tracks.camera, tracks.n_frames, clean, out, n_raw - n_kept)

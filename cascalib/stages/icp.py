@@ -1,0 +1,332 @@
+"""Stage IV: ICP between two cameras' ground trajectories, then sub-frame time and rate.
+
+Paper, "Iterative Closest Point": with the time shift known, points are associated frame by
+frame (Hungarian matching when several people are present) and the 2D rotation and translation
+re-estimated until convergence. Here:
+
+* the per-frame assignment is truncated (a pair farther apart than the gate costs the gate, so
+  people seen by one camera only stay unmatched) and vectorised over frames by enumerating the
+  permutations for up to six people (``scipy.optimize.linear_sum_assignment`` beyond);
+* the fit is a trimmed similarity (Umeyama) whose scale is clamped to the stage-I error range;
+* :func:`refine_sync` then fits the offset (sub-frame), the residual frame-rate ratio and the
+  similarity jointly by robust least squares on the matched tracklets, interpolating camera B's
+  trajectory at continuous times: time is the third coordinate of the alignment.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares, linear_sum_assignment
+
+from cascalib.geometry import umeyama
+from cascalib.stages.sync import GridTrack
+
+__all__ = ["Lanes", "Similarity2D", "IcpResult", "SyncFit", "dense_lanes", "assign_frames",
+           "icp_pair", "refine_sync"]
+
+logger = logging.getLogger(__name__)
+
+_BIG = 1e6
+
+
+@dataclass(frozen=True)
+class Similarity2D:
+    """``x_a = scale * R(angle) @ x_b + t``."""
+
+    angle: float
+    t: NDArray[np.float64]
+    scale: float = 1.0
+
+    @property
+    def R(self) -> NDArray[np.float64]:
+        c, s = np.cos(self.angle), np.sin(self.angle)
+        return np.array([[c, -s], [s, c]])
+
+    def apply(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Map points (..., 2) from B's frame to A's."""
+        return self.scale * xy @ self.R.T + self.t
+
+    def compose(self, other: Similarity2D) -> Similarity2D:
+        """``self o other`` (apply ``other`` first)."""
+        return Similarity2D(self.angle + other.angle, self.apply(other.t),
+                            self.scale * other.scale)
+
+    def inverse(self) -> Similarity2D:
+        return Similarity2D(-self.angle, -(self.t @ self.R) / self.scale, 1.0 / self.scale)
+
+
+@dataclass(frozen=True)
+class Lanes:
+    """A camera's grid tracks as a dense array: at most one tracklet per lane at a time.
+
+    pos : (n_grid, n_lanes, 2), NaN empty; tid : (n_grid, n_lanes) tracklet index, -1 empty.
+    """
+
+    pos: NDArray[np.float64]
+    tid: NDArray[np.int64]
+
+
+def dense_lanes(track: GridTrack) -> Lanes:
+    """Pack the tracklets of a step-1 :class:`GridTrack` into lanes (interval scheduling)."""
+    ends: list[int] = []
+    lane_of = []
+    order = np.argsort(track.start, kind="stable")
+    for i in order:
+        s0, n = int(track.start[i]), len(track.xy[i])
+        free = [k for k, e in enumerate(ends) if e <= s0]
+        k = free[0] if free else len(ends)
+        if k == len(ends):
+            ends.append(0)
+        ends[k] = s0 + n
+        lane_of.append((i, k))
+    n_grid = max(track.length, max((s + len(x) for s, x in zip(track.start, track.xy,
+                                                                  strict=True)), default=0))
+    pos = np.full((n_grid, max(1, len(ends)), 2), np.nan)
+    tid = np.full((n_grid, max(1, len(ends))), -1, np.int64)
+    for i, k in lane_of:
+        s0, xy = int(track.start[i]), track.xy[i]
+        pos[s0:s0 + len(xy), k] = xy
+        tid[s0:s0 + len(xy), k] = np.where(np.isfinite(xy[:, 0]), i, -1)
+    return Lanes(pos, tid)
+
+
+def assign_frames(cost: NDArray[np.float64], gate2: float) -> NDArray[np.int64]:
+    """Truncated optimal assignment per frame.
+
+    Parameters
+    ----------
+    cost : ndarray, shape (n_frames, k, l)
+        Squared distances, NaN where either side is missing.
+    gate2 : float
+        Pairs costing more than this are not matched.
+
+    Returns
+    -------
+    ndarray of int, shape (n_frames, k)
+        Column matched to each row, -1 if none.
+    """
+    g, k, m = cost.shape
+    c = np.where(np.isfinite(cost), np.minimum(cost, gate2), gate2)
+    n = max(k, m)
+    out = np.full((g, k), -1, np.int64)
+    if n == 1 or k == 0 or m == 0:
+        if k and m:
+            out[:, 0] = 0
+    elif n <= 6:
+        pad = np.full((g, n, n), gate2)
+        pad[:, :k, :m] = c
+        perms = np.array(list(itertools.permutations(range(n))))
+        total = pad[:, np.arange(n)[None, :], perms].sum(-1)  # (g, n_perm)
+        best = perms[np.argmin(total, axis=1)][:, :k]
+        out = np.where(best < m, best, -1)
+    else:
+        for f in range(g):
+            r, cc = linear_sum_assignment(c[f])
+            out[f, r] = cc
+    rows = np.arange(k)[None, :]
+    matched = out >= 0
+    val = np.where(matched, cost[np.arange(g)[:, None], rows, np.maximum(out, 0)], np.inf)
+    out[~(np.nan_to_num(val, nan=np.inf) < gate2)] = -1
+    return out
+
+
+@dataclass(frozen=True)
+class IcpResult:
+    """Result of :func:`icp_pair`.
+
+    transform : Similarity2D mapping B's ground frame into A's; score : sum of
+    ``exp(-d^2 / 2 sigma^2)`` over matches (the candidate's evidence); rms : inlier RMS (m);
+    n_matches : matched detections; frames_a, lanes_a, frames_b, lanes_b : the matches.
+    """
+
+    transform: Similarity2D
+    score: float
+    rms: float
+    n_matches: int
+    frames_a: NDArray[np.int64]
+    lanes_a: NDArray[np.int64]
+    frames_b: NDArray[np.int64]
+    lanes_b: NDArray[np.int64]
+
+
+def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int) -> NDArray[np.int64]:
+    ga = np.arange(la.pos.shape[0])
+    gb = ga - offset
+    ok = (gb >= 0) & (gb < lb.pos.shape[0])
+    ga = ga[ok]
+    ok = np.isfinite(la.pos[ga, :, 0]).any(1) & np.isfinite(lb.pos[ga - offset, :, 0]).any(1)
+    ga = ga[ok]
+    if ga.size > max_frames:
+        ga = ga[np.linspace(0, ga.size - 1, max_frames).astype(int)]
+    return ga
+
+
+def _init_translation(pa: NDArray[np.float64], pb: NDArray[np.float64], angle: float,
+                      bin_size: float = 0.25) -> NDArray[np.float64]:
+    """Mode of all per-frame differences ``a - R b`` (robust to unmatched people)."""
+    c, s = np.cos(angle), np.sin(angle)
+    qb = pb @ np.array([[c, -s], [s, c]]).T
+    d = (pa[:, :, None, :] - qb[:, None, :, :]).reshape(-1, 2)
+    d = d[np.isfinite(d).all(1)]
+    if d.size == 0:
+        return np.zeros(2)
+    q = np.round(d / bin_size).astype(np.int64)
+    u, inv, cnt = np.unique(q, axis=0, return_inverse=True, return_counts=True)
+    best = int(np.argmax(cnt))
+    near = np.abs(q - u[best]).max(1) <= 1
+    return np.median(d[near], axis=0)
+
+
+def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 0.2,
+             gate: float = 1.5, min_gate: float = 0.3, scale_range: float = 1.0,
+             n_iter: int = 15, max_frames: int = 2000, trim: float = 0.9) -> IcpResult | None:
+    """Trimmed similarity ICP of B's ground points onto A's with frames matched by ``offset``.
+
+    Parameters
+    ----------
+    la, lb : Lanes
+        Step-1 grids of cameras A and B.
+    offset : int
+        Grid frame ``g`` of A matches frame ``g - offset`` of B.
+    angle : float
+        Initial rotation B -> A (radians).
+    scale_range : float
+        Largest allowed scale (and 1 / smallest); 1 = rigid.
+    trim : float
+        Fraction of the gated matches kept for the fit (the worst are dropped).
+
+    Returns
+    -------
+    IcpResult, or None when the cameras share fewer than 10 matched detections.
+    """
+    ga = _overlap_frames(la, lb, offset, max_frames)
+    if ga.size < 10:
+        return None
+    pa, pb = la.pos[ga], lb.pos[ga - offset]
+    tr = Similarity2D(angle, _init_translation(pa, pb, angle))
+    g2 = gate
+    for it in range(n_iter):
+        qb = tr.apply(pb)
+        cost = ((pa[:, :, None, :] - qb[:, None, :, :]) ** 2).sum(-1)
+        col = assign_frames(cost, g2**2)
+        fi, ka = np.nonzero(col >= 0)
+        kb = col[fi, ka]
+        if fi.size < 10:
+            return None
+        d = np.sqrt(cost[fi, ka, kb])
+        keep = d <= np.quantile(d, trim) if it > 2 else np.ones(d.size, bool)
+        s, R, t = umeyama(pb[fi[keep], kb[keep]], pa[fi[keep], ka[keep]],
+                          with_scale=scale_range > 1.0)
+        s = float(np.clip(s, 1.0 / scale_range, scale_range))
+        new = Similarity2D(float(np.arctan2(R[1, 0], R[0, 0])), t, s)
+        if s != 1.0 and scale_range > 1.0:  # re-solve t for the clamped scale
+            new = Similarity2D(new.angle, np.mean(pa[fi[keep], ka[keep]]
+                                                  - s * pb[fi[keep], kb[keep]] @ new.R.T, 0), s)
+        moved = np.abs(new.apply(pb[fi, kb]) - tr.apply(pb[fi, kb])).max()
+        tr = new
+        rms = float(np.sqrt(np.mean(d[keep] ** 2)))
+        g2 = max(min_gate, min(g2, 4.0 * rms))
+        if moved < 1e-4 and it > 3:
+            break
+    qb = tr.apply(pb)
+    cost = ((pa[:, :, None, :] - qb[:, None, :, :]) ** 2).sum(-1)
+    col = assign_frames(cost, g2**2)
+    fi, ka = np.nonzero(col >= 0)
+    kb = col[fi, ka]
+    d2 = cost[fi, ka, kb]
+    score = float(np.exp(-0.5 * d2 / sigma**2).sum())
+    rms = float(np.sqrt(np.mean(d2))) if d2.size else np.inf
+    return IcpResult(tr, score, rms, int(fi.size), ga[fi], ka, ga[fi] - offset, kb)
+
+
+@dataclass(frozen=True)
+class SyncFit:
+    """Continuous pairwise clock and ground alignment.
+
+    ``u_a = rate * u_b + offset`` (grid times in reference frames) and ``x_a = T(x_b)``.
+    ``pairs_a``, ``pairs_b`` (n, 2): matched ground points (at the fitted time) for the global
+    alignment; ``rms``: robust residual (m); ``offset_sd``: 1-sigma of the offset (frames).
+    """
+
+    offset: float
+    rate: float
+    transform: Similarity2D
+    rms: float
+    offset_sd: float
+    pairs_a: NDArray[np.float64]
+    pairs_b: NDArray[np.float64]
+
+
+def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
+                *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
+                max_samples: int = 4000, rng: np.random.Generator | None = None) -> SyncFit:
+    """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
+
+    Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
+    ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares.
+    """
+    rng = np.random.default_rng(rng)
+    ua = icp.frames_a.astype(np.float64)
+    xa = la.pos[icp.frames_a, icp.lanes_a]
+    tid = lb.tid[icp.frames_b, icp.lanes_b]
+    ok = (tid >= 0) & np.isfinite(xa).all(1)
+    ua, xa, tid = ua[ok], xa[ok], tid[ok]
+    if ua.size > max_samples:
+        sel = rng.choice(ua.size, max_samples, replace=False)
+        ua, xa, tid = ua[sel], xa[sel], tid[sel]
+    # per-tracklet interpolation tables of B (grid time, x, y) without gaps
+    tabs = {}
+    for t in np.unique(tid):
+        xy = b.xy[t]
+        g = b.start[t] + np.arange(len(xy))
+        good = np.isfinite(xy[:, 0])
+        tabs[int(t)] = (g[good].astype(np.float64), xy[good])
+    u0 = float(np.median(ua))  # rate pivots about the middle: offset and rate decorrelate
+
+    def predict(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        off, eps = p[0], p[1] * 1e-3
+        ub = (ua - u0 - off) / (1.0 + eps) + u0
+        out = np.empty_like(xa)
+        for t, (g, xy) in tabs.items():
+            m = tid == t
+            out[m, 0] = np.interp(ub[m], g, xy[:, 0])
+            out[m, 1] = np.interp(ub[m], g, xy[:, 1])
+        tr = Similarity2D(p[2], p[3:5], float(np.exp(p[5])))
+        return tr.apply(out)
+
+    def resid(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (xa - predict(p)).ravel()
+
+    p0 = np.r_[float(offset), 0.0, icp.transform.angle, icp.transform.t,
+               np.log(icp.transform.scale)]
+    ls = np.log(scale_range) + 1e-9
+    lo = np.r_[offset - 4.0, -5.0 if estimate_rate else -1e-9, -np.inf, -np.inf, -np.inf, -ls]
+    hi = np.r_[offset + 4.0, 5.0 if estimate_rate else 1e-9, np.inf, np.inf, np.inf, ls]
+    p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
+    sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=sigma,
+                        diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5], x_scale="jac")
+    r = sol.fun.reshape(-1, 2)
+    d = np.linalg.norm(r, axis=1)
+    inl = d < 3 * max(sigma, np.median(d) * 1.5)
+    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    try:
+        J = sol.jac[np.repeat(inl, 2)]
+        cov = np.linalg.inv(J.T @ J) * rms**2
+        off_sd = float(np.sqrt(max(cov[0, 0], 0.0)))
+    except np.linalg.LinAlgError:
+        off_sd = np.inf
+    p = sol.x
+    rate = 1.0 + p[1] * 1e-3
+    offset_at_zero = p[0] + u0 - rate * u0  # u_a = rate * u_b + offset_at_zero
+    tr = Similarity2D(float(p[2]), p[3:5].copy(), float(np.exp(p[5])))
+    pb = predict(p)
+    sel = np.flatnonzero(inl)
+    if sel.size > 400:
+        sel = rng.choice(sel, 400, replace=False)
+    pb_native = tr.inverse().apply(pb[sel])
+    return SyncFit(float(offset_at_zero), float(rate), tr, rms, off_sd, xa[sel], pb_native)

@@ -1,0 +1,356 @@
+"""Stage II: time synchronisation of two cameras from their ground-plane trajectories.
+
+The paper (sec. "1D Temporal Search") compares the distance of each ground point from the
+centroid between two cameras over integer offsets. That signal discards the direction of
+motion, so a person walking in a circle gives a periodic cost with near-equal minima one period
+apart (paper, "Failure Case: Periodic Motion"). Here the comparison keeps the full 2D shape:
+
+* every tracklet of camera A is cut into chunks of a few seconds; for every chunk, every
+  tracklet of camera B and **every** integer offset at once, the closed-form 2D Procrustes fit
+  (rotation, translation and, optionally, scale: the stage-I metric error) and its residual are
+  computed with FFT cross-correlations of the masked complex trajectories ``z = x + iy``;
+* a chunk votes, at each offset, for its best-fitting B tracklet with weight
+  ``n * exp(-rms^2 / 2 sigma^2)`` into a histogram over (offset, rotation angle): the yaw between
+  two cameras is one number for all people and all times, so at a wrong offset the chunks'
+  rotations scatter while at the right one they pile up in one bin. Walking one period of a
+  loop too far fits each chunk but only as well as two different laps agree, which is far worse
+  than the detection noise at the true offset;
+* the best few peaks (offset, angle) are returned as candidates for the ICP verification
+  (:mod:`cascalib.stages.icp`), which picks the winner and refines to sub-frame offset and rate.
+
+Time is measured on a common grid: reference-camera frames, using the frame-rate prior
+``rho = fps_ref / fps_cam`` (grid time of native frame ``k`` is ``rho * k``). The residual rate
+is estimated later.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import fft as sfft
+from scipy.ndimage import gaussian_filter1d
+
+from cascalib.stages.ground import GroundTracks
+
+__all__ = ["GridTrack", "SyncCandidate", "SyncCurve", "resample_tracks", "search_offsets",
+           "solve_time"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GridTrack:
+    """Tracklets of one camera resampled on a regular grid of reference-frame time.
+
+    Parameters
+    ----------
+    camera : str
+    step : float
+        Grid spacing in reference frames.
+    start : ndarray of int, shape (n_tracklets,)
+        Grid index of each tracklet's first sample (grid time ``start * step``).
+    xy : list of ndarray, each shape (n_i, 2)
+        Positions, NaN where the tracklet had a gap.
+    length : int
+        Number of grid samples covering the camera's whole video.
+    """
+
+    camera: str
+    step: float
+    start: NDArray[np.int64]
+    xy: list[NDArray[np.float64]]
+    length: int
+
+
+@dataclass(frozen=True)
+class SyncCandidate:
+    """One peak of the pairwise offset search.
+
+    ``offset`` (reference frames): grid time ``u_a`` of camera A shows the same instant as grid
+    time ``u_a - offset`` of camera B. ``angle`` (radians) rotates B's ground frame into A's.
+    """
+
+    offset: float
+    angle: float
+    score: float
+
+
+@dataclass(frozen=True)
+class SyncCurve:
+    """Result of :func:`search_offsets` for one camera pair.
+
+    Parameters
+    ----------
+    offsets : ndarray, shape (n,)
+        Candidate offsets (reference frames).
+    score : ndarray, shape (n,)
+        Vote mass at each offset (higher is better); the plot shows ``-score`` as a cost.
+    candidates : list of SyncCandidate
+        Best peaks, best first.
+    peak_ratio : float
+        Second-best peak score over the best (1 = ambiguous, 0 = unique).
+    """
+
+    offsets: NDArray[np.float64]
+    score: NDArray[np.float64]
+    candidates: list[SyncCandidate]
+    peak_ratio: float
+
+
+def _smooth(frames: NDArray[np.int64], xy: NDArray[np.float64], sigma: float
+            ) -> NDArray[np.float64]:
+    """Gaussian smoothing over native frames with gaps (normalised convolution)."""
+    if sigma <= 0:
+        return xy
+    idx = frames - frames[0]
+    m = np.zeros(idx[-1] + 1)
+    v = np.zeros((idx[-1] + 1, 2))
+    m[idx] = 1.0
+    v[idx] = xy
+    ms = gaussian_filter1d(m, sigma, mode="constant")
+    vs = gaussian_filter1d(v, sigma, axis=0, mode="constant")
+    return vs[idx] / ms[idx, None]
+
+
+def resample_tracks(ground: GroundTracks, rho: float, step: float, *, max_gap: int = 3,
+                    min_samples: int = 5, smooth: float = 0.0) -> GridTrack:
+    """Resample tracklets at grid times ``g * step`` (reference frames) by linear interpolation.
+
+    Parameters
+    ----------
+    ground : GroundTracks
+    rho : float
+        Reference frames per native frame (frame-rate prior).
+    step : float
+        Grid spacing in reference frames.
+    max_gap : int
+        Native frames across which interpolation is allowed.
+    smooth : float
+        Gaussian smoothing s.d. in native frames before resampling. Interpolating white noise
+        halfway between samples halves its variance, which biases a sub-frame offset fit
+        towards half frames; smoothing first makes the noise correlated and removes the bias.
+    """
+    starts, xys = [], []
+    for tl in ground.tracklets:
+        u = rho * tl.frames.astype(np.float64)
+        g = np.arange(int(np.ceil(u[0] / step)), int(np.floor(u[-1] / step)) + 1)
+        if g.size < min_samples:
+            continue
+        ug = g * step
+        src = _smooth(tl.frames, tl.xy, smooth)
+        xy = np.stack([np.interp(ug, u, src[:, k]) for k in (0, 1)], axis=1)
+        right = np.clip(np.searchsorted(u, ug), 1, u.size - 1)
+        gap = tl.frames[right] - tl.frames[right - 1]
+        exact = np.isclose(u[np.clip(np.searchsorted(u, ug), 0, u.size - 1)], ug)
+        xy[(gap > max_gap) & ~exact] = np.nan
+        starts.append(int(g[0]))
+        xys.append(xy)
+    length = int(np.floor(rho * (ground.n_frames - 1) / step)) + 1
+    return GridTrack(ground.camera, step, np.asarray(starts, np.int64), xys, length)
+
+
+def _chunks(track: GridTrack, chunk: int, min_samples: int, min_spread: float
+            ) -> list[tuple[int, NDArray[np.float64]]]:
+    """Cut tracklets into chunks of at most ``chunk`` samples that move by ``min_spread`` m."""
+    out = []
+    for s0, xy in zip(track.start, track.xy, strict=True):
+        n = len(xy)
+        n_parts = max(1, int(np.ceil(n / chunk)))
+        edges = np.linspace(0, n, n_parts + 1).astype(int)
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            part = xy[a:b]
+            ok = np.isfinite(part[:, 0])
+            if ok.sum() < min_samples:
+                continue
+            if np.sqrt(np.nanvar(part[:, 0]) + np.nanvar(part[:, 1])) < min_spread:
+                continue  # a person standing still says nothing about time
+            out.append((int(s0 + a), part))
+    return out
+
+
+def _dense(track: GridTrack, n_fft: int) -> tuple[NDArray[np.complex128], ...]:
+    """FFTs of mask, mask*z and mask*|z|^2 of every tracklet on the full grid, (n_tl, n_fft)."""
+    n_tl = len(track.xy)
+    m = np.zeros((n_tl, n_fft))
+    z = np.zeros((n_tl, n_fft), np.complex128)
+    for i, (s0, xy) in enumerate(zip(track.start, track.xy, strict=True)):
+        ok = np.isfinite(xy[:, 0])
+        idx = s0 + np.arange(len(xy))
+        m[i, idx[ok]] = 1.0
+        z[i, idx[ok]] = xy[ok, 0] + 1j * xy[ok, 1]
+    return (sfft.fft(m, axis=1), sfft.fft(z, axis=1),
+            sfft.fft(m * np.abs(z) ** 2, axis=1))
+
+
+def _chunk_fit(part: NDArray[np.float64], G: tuple[NDArray[np.complex128], ...], n_fft: int,
+               lags: NDArray[np.int64], min_samples: int, scale_range: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Procrustes residual of one chunk against every B tracklet at every lag.
+
+    Returns (n, rms, angle), each shape (n_tl, n_lags); rms is inf where the overlap is short.
+    """
+    ok = np.isfinite(part[:, 0])
+    m = ok.astype(np.float64)
+    za = np.where(ok, part[:, 0] + 1j * part[:, 1], 0)
+    F1 = np.conj(sfft.fft(m, n_fft))
+    F2 = np.conj(sfft.fft(za, n_fft))
+    F3 = np.conj(sfft.fft(m * np.abs(za) ** 2, n_fft))
+    G1, G2, G3 = G
+    X1 = sfft.ifft(F1 * (G1 + 1j * G3), axis=1)[:, lags]
+    n, qb = X1.real, X1.imag
+    sb = sfft.ifft(F1 * G2, axis=1)[:, lags]
+    sa = np.conj(sfft.ifft(F2 * G1, axis=1)[:, lags])
+    c = sfft.ifft(F2 * G2, axis=1)[:, lags]
+    qa = sfft.ifft(F3 * G1, axis=1)[:, lags].real
+    n = np.round(n)
+    good = n >= min_samples
+    nn = np.where(good, n, 1.0)
+    va = np.maximum(qa - np.abs(sa) ** 2 / nn, 1e-12)
+    vb = np.maximum(qb - np.abs(sb) ** 2 / nn, 0.0)
+    x = c - sb * np.conj(sa) / nn
+    s = np.clip(np.abs(x) / va, 1.0 / scale_range, scale_range)  # b ~ s R a, stage-I scale
+    res = vb - 2 * s * np.abs(x) + s * s * va
+    rms = np.where(good, np.sqrt(np.maximum(res, 0.0) / nn), np.inf)
+    return n, rms, np.angle(x)
+
+
+def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = None,
+                   chunk_seconds_frames: int = 150, min_overlap: int = 20,
+                   min_spread: float = 0.3, sigma: float = 0.2, scale_range: float = 1.0,
+                   angle_bins: int = 36, n_candidates: int = 3,
+                   nms_frames: float = 15.0) -> SyncCurve:
+    """Score every integer (grid) offset between cameras A and B; see the module docstring.
+
+    Parameters
+    ----------
+    a, b : GridTrack
+        Both on the same grid step.
+    max_offset : float, optional
+        Largest |offset| searched (reference frames); default: every offset with overlap.
+    chunk_seconds_frames : int
+        Chunk length of A's tracklets in reference frames.
+    min_overlap : int
+        Least number of overlapping grid samples for a chunk to vote.
+    min_spread : float
+        Chunks whose positions spread less (m, RMS) are skipped.
+    sigma : float
+        Residual scale of the vote kernel (m).
+    scale_range : float
+        Allowed relative scale between the two ground frames (1 = rigid).
+    angle_bins : int
+        Rotation histogram bins over 360 degrees.
+
+    Returns
+    -------
+    SyncCurve
+    """
+    step = a.step
+    chunk = max(min_overlap, int(round(chunk_seconds_frames / step)))
+    n_fft = sfft.next_fast_len(b.length + chunk + 1)
+    lag_min, lag_max = -(chunk - 1), b.length - 1
+    lags = np.arange(lag_min, lag_max + 1)
+    lag_idx = lags % n_fft
+    n_off = a.length + b.length - 1  # offset index: (p - lag) + b.length - 1
+    hist = np.zeros((n_off + chunk, angle_bins))
+    G = _dense(b, n_fft)
+    chunks = _chunks(a, chunk, min_overlap, min_spread)
+    for p, part in chunks:
+        n, rms, ang = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range)
+        support = n * np.exp(-0.5 * (rms / sigma) ** 2)
+        best = np.argmax(support, axis=0)
+        sup = support[best, np.arange(lags.size)]
+        th = ang[best, np.arange(lags.size)]
+        off_idx = p - lags + b.length - 1
+        keep = (sup > 1e-3) & (off_idx >= 0) & (off_idx < n_off)
+        bins = np.floor((-th[keep] % (2 * np.pi)) / (2 * np.pi) * angle_bins).astype(int)
+        np.add.at(hist, (off_idx[keep], bins % angle_bins), sup[keep])
+    hist = hist[:n_off]
+    smooth = 0.5 * hist + 0.25 * (np.roll(hist, 1, axis=1) + np.roll(hist, -1, axis=1))
+    offsets = (np.arange(n_off) - (b.length - 1)) * step
+    score = smooth.max(axis=1)
+    if max_offset is not None:
+        score = np.where(np.abs(offsets) <= max_offset, score, 0.0)
+    cands = _peaks(offsets, score, smooth, angle_bins, n_candidates, nms_frames)
+    ratio = cands[1].score / cands[0].score if len(cands) > 1 and cands[0].score > 0 else 0.0
+    logger.debug("sync %s-%s: %d chunks, best offset %.1f (ratio %.2f)", a.camera, b.camera,
+                 len(chunks), cands[0].offset if cands else np.nan, ratio)
+    return SyncCurve(offsets, score, cands, float(ratio))
+
+
+def _peaks(offsets: NDArray[np.float64], score: NDArray[np.float64], hist: NDArray[np.float64],
+           angle_bins: int, k: int, nms: float) -> list[SyncCandidate]:
+    """Top ``k`` local maxima of ``score`` at least ``nms`` frames apart."""
+    order = np.argsort(-score)
+    out: list[SyncCandidate] = []
+    for i in order:
+        if score[i] <= 0 or len(out) >= k:
+            break
+        if any(abs(offsets[i] - c.offset) < nms for c in out):
+            continue
+        j = int(np.argmax(hist[i]))
+        # sub-bin angle from the histogram's neighbours (circular mean of three bins)
+        nb = np.array([j - 1, j, j + 1]) % angle_bins
+        ang = (nb + 0.5) * 2 * np.pi / angle_bins
+        w = hist[i, nb]
+        angle = float(np.angle(np.sum(w * np.exp(1j * ang))))
+        out.append(SyncCandidate(float(offsets[i]), angle, float(score[i])))
+    return out
+
+
+def solve_time(n_cams: int, edges: list[tuple[int, int, float, float, float]], reference: int,
+               *, tolerance: float = 2.0, n_iter: int = 20
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Globally consistent clock models from pairwise estimates.
+
+    Each edge ``(i, j, offset, log_rate, weight)`` says grid time ``u_i = exp(log_rate) * u_j +
+    offset``. Unknowns per camera: ``ref = a_c * u_c + b_c`` (``a_ref = 1, b_ref = 0``).
+    Log-rates then offsets are solved by iteratively reweighted L1 (so that a single wrong
+    pair, e.g. a period-off peak, is outvoted by the cycles through the other cameras); edges
+    whose offset residual exceeds ``tolerance`` frames are rejected and the rest are averaged
+    by weighted least squares.
+
+    Returns
+    -------
+    a, b : ndarray, shape (n_cams,)
+    accepted : ndarray of bool, shape (n_edges,)
+    """
+    if not edges:
+        return np.ones(n_cams), np.zeros(n_cams), np.zeros(0, bool)
+    E = np.asarray(edges, dtype=np.float64)
+    i, j = E[:, 0].astype(int), E[:, 1].astype(int)
+    w0 = np.maximum(E[:, 4], 1e-6)
+    # rates: log a_j - log a_i = log_rate
+    A = np.zeros((len(E), n_cams))
+    A[np.arange(len(E)), j] = 1.0
+    A[np.arange(len(E)), i] -= 1.0
+    free = np.arange(n_cams) != reference
+    log_a = np.zeros(n_cams)
+    log_a[free] = _irls_l1(A[:, free], E[:, 3], w0, n_iter, 1e-6)
+    b = np.zeros(n_cams)
+    b[free] = _irls_l1(A[:, free], np.exp(log_a)[i] * E[:, 2], w0, n_iter, 1e-2)
+    ok = np.abs(A @ b - np.exp(log_a)[i] * E[:, 2]) <= tolerance
+    if ok.any():
+        # the consistent pairs agree to noise level: average them by weighted least squares
+        sw = np.sqrt(w0[ok])
+        log_a[free] = np.linalg.lstsq(A[ok][:, free] * sw[:, None], E[ok, 3] * sw,
+                                      rcond=None)[0]
+        y = np.exp(log_a)[i[ok]] * E[ok, 2]
+        b[free] = np.linalg.lstsq(A[ok][:, free] * sw[:, None], y * sw, rcond=None)[0]
+    return np.exp(log_a), b, ok
+
+
+def _irls_l1(A: NDArray[np.float64], y: NDArray[np.float64], w0: NDArray[np.float64],
+             n_iter: int, eps: float) -> NDArray[np.float64]:
+    """Weighted L1 regression ``min sum w0 |A x - y|`` by iteratively reweighted least squares.
+    Unconnected unknowns stay 0 (minimum-norm solution)."""
+    w = w0.copy()
+    x = np.zeros(A.shape[1])
+    for _ in range(n_iter):
+        sw = np.sqrt(w)
+        x = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)[0]
+        r = np.abs(A @ x - y)
+        w = w0 / np.maximum(r, eps)
+    return x
