@@ -1,0 +1,220 @@
+"""Stage I: focal length, principal point and ground plane of one camera from upright people.
+
+Per camera, without synchronisation (CasCalib, "Single View Geometric Calibration"):
+
+1. keep upright, untruncated, confident poses (:mod:`cascalib.stages.upright`);
+2. RANSAC over minimal 3-person DLT solves with the paper's inlier tests (predicted upper point
+   within 5 % of the person's pixel height, direction within 2.86 deg);
+3. DLT refit on the inliers, then a robust nonlinear refinement of ``(f, normal, height
+   [, cx, cy])`` on *all* inliers (every upright frame of every person; shoulder centre, neck
+   and head top), with one height per tracked person and the neck/head ratios refined under
+   priors, re-classifying the inliers with a noise-adaptive threshold;
+4. the focal length's confidence interval from the Jacobian, and a refusal
+   (:class:`~cascalib.errors.EstimationFailed`) when the geometry cannot determine it.
+
+Beyond the paper: the upper points are not at the stature ``h``: the shoulder centre is at
+0.818 h, the head top at h and the ankle joint itself 0.039 h above the floor (Drillis & Contini
+1966, in Winter, "Biomechanics and Motor Control of Human Movement", Fig. 4.1). The paper's DLT
+puts the shoulder at ``h`` above the ankle, which overstates the ankle-shoulder distance by
+22 %; this only rescales the scene (the focal length and normal do not depend on a common height
+scale), but it biases the camera height, and mixing points at different heights needs the
+right ratios.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from cascalib.errors import EstimationFailed
+from cascalib.stages.single_view_fit import SingleViewFit, fit_observations
+from cascalib.stages.single_view_result import SingleViewResult
+from cascalib.stages.upright import extract_observations, upright_mask
+from cascalib.tracks import Tracks
+
+__all__ = ["SingleViewConfig", "SingleViewResult", "calibrate_single_view"]
+
+logger = logging.getLogger(__name__)
+
+
+class SingleViewConfig(BaseModel):
+    """Settings of Stage I (single-view focal length and ground plane)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    # -- people ---------------------------------------------------------------------------
+    default_height: float = Field(
+        1.70, gt=0.5, lt=2.5,
+        description="Assumed stature (m) of every person whose height is not given "
+                    "(paper: 1.7 m in the simulations).")
+    height_sd: float = Field(
+        0.07, ge=0.0,
+        description="Prior s.d. (m) of a tracked person's stature around the assumed one, used "
+                    "when each tracked person gets their own height (adult stature s.d. is "
+                    "about 7 cm within a sex, NCD-RisC 2016).")
+    track_heights: bool = Field(
+        True, description="Estimate one height per tracked person (needs track ids and at "
+                          "least `min_track_detections` upright frames); the paper uses one "
+                          "fixed height for everyone.")
+    min_track_detections: int = Field(
+        5, ge=2, description="Upright frames a track needs to get its own height.")
+    upper_points: list[Literal["shoulder", "neck", "head_top"]] = Field(
+        default_factory=lambda: ["shoulder", "neck", "head_top"],
+        description="Points above the ankle centre to use (the paper uses the shoulder centre "
+                    "only). Neck and head top are used only when the skeleton has them.")
+    joint_height_ratios: dict[str, float] = Field(
+        default_factory=lambda: {"ankle": 0.039, "shoulder": 0.818, "neck": 0.818,
+                                 "head_top": 1.0},
+        description="Height above the floor as a fraction of stature (Drillis & Contini 1966: "
+                    "ankle 0.039, shoulder 0.818, head top 1.0; the neck keypoint of "
+                    "COCO-derived detectors is the shoulder midpoint, others place it higher, "
+                    "hence `refine_upper_ratios`).")
+    refine_upper_ratios: bool = Field(
+        True, description="Refine the ratios of the neck and head top (not the shoulder, which "
+                          "anchors the scale) under a prior of s.d. `upper_ratio_sd`.")
+    upper_ratio_sd: float = Field(
+        0.05, gt=0.0, description="Relative prior s.d. of the refined neck/head-top ratios.")
+    # -- upright filter -------------------------------------------------------------------
+    max_bend_deg: float = Field(
+        25.0, gt=0.0,
+        description="Largest (180 - knee angle) + (180 - hip angle) of the straighter side for "
+                    "a pose to count as upright (supplement Eq. supp_angle_filter; the paper "
+                    "gives no threshold).")
+    min_confidence: float = Field(
+        0.3, ge=0.0, description="Smallest detector confidence of the legs, hips and shoulders.")
+    border_px: float = Field(
+        3.0, ge=0.0, description="Poses with a required joint this close to the image edge "
+                                 "are treated as truncated.")
+    leg_torso_ratio: tuple[float, float] = Field(
+        (1.2, 2.6), description="Accepted image ratio ankle-hip / hip-shoulder (standing: "
+                                "about 1.7); rejects sitting or crouching people seen "
+                                "from the front.")
+    min_pixel_height: float = Field(
+        30.0, ge=0.0, description="Smallest ankle-to-shoulder length (px) of a usable person.")
+    # -- RANSAC ---------------------------------------------------------------------------
+    inlier_rel_error: float = Field(
+        0.05, gt=0.0, description="RANSAC inlier test: predicted-minus-detected upper point "
+                                  "distance over the person's pixel height (paper: 5 %).")
+    inlier_angle_deg: float = Field(
+        2.86, gt=0.0, description="RANSAC inlier test: angle at the ankle between detected "
+                                  "and predicted upper point (paper: 2.86 deg).")
+    adaptive_inlier_sigmas: float = Field(
+        3.0, gt=0.0,
+        description="After the refinement, a detection is an inlier if its error is within "
+                    "the paper's thresholds or within this many robust s.d. of the residuals "
+                    "(keeps good data when the detector noise exceeds 5 % of small persons).")
+    ransac_max_iterations: int = Field(1000, ge=1, description="RANSAC iteration cap.")
+    ransac_confidence: float = Field(
+        0.999, gt=0.0, lt=1.0, description="RANSAC stops when an all-inlier sample has been "
+                                           "drawn with this probability.")
+    min_sample_spread: float = Field(
+        0.02, ge=0.0, description="Minimal samples whose ankles are closer than this fraction "
+                                  "of the image diagonal are rejected unsolved.")
+    max_detections: int = Field(
+        2000, ge=10,
+        description="Upright detections used for the fit, picked spread over the image "
+                    "(consecutive frames add little); all are classified in the end.")
+    # -- model ----------------------------------------------------------------------------
+    principal_point: Literal["center", "estimate", "auto"] = Field(
+        "auto", description="'center' holds it at the image centre (paper); 'estimate' always "
+                            "fits it; 'auto' fits it and keeps it when well determined and "
+                            "significantly better.")
+    principal_point_max_sd: float = Field(
+        0.01, gt=0.0, description="'auto' keeps the estimated principal point only if its "
+                                  "1-s.d. is below this fraction of the image diagonal.")
+    fov_range_deg: tuple[float, float] = Field(
+        (5.0, 160.0), description="Plausible horizontal field of view; focal lengths outside "
+                                  "are rejected.")
+    loss: Literal["linear", "huber", "soft_l1", "cauchy"] = Field(
+        "huber", description="Robust loss of the refinement (scipy.optimize.least_squares).")
+    # -- refusal --------------------------------------------------------------------------
+    confidence_level: float = Field(
+        0.95, gt=0.0, lt=1.0, description="Level of the reported focal interval.")
+    max_focal_uncertainty: float = Field(
+        0.25, gt=0.0,
+        description="Refuse (EstimationFailed) when the focal interval's half-width exceeds "
+                    "this fraction of the focal length.")
+    min_ankle_spread: float = Field(
+        0.05, ge=0.0,
+        description="Refuse when the upright ankles span less than this fraction of the image "
+                    "diagonal (everyone in one spot).")
+    min_detections: int = Field(
+        3, ge=3, description="Fewest upright detections to attempt a fit (3: the minimal DLT).")
+
+
+def calibrate_single_view(tracks: Tracks, config: SingleViewConfig | None = None, *,
+                          height: float | Mapping[int, float] | Sequence[float] | None = None,
+                          rng: np.random.Generator | int | None = None) -> SingleViewResult:
+    """Estimate focal length, principal point and ground plane of one camera.
+
+    Parameters
+    ----------
+    tracks : Tracks
+        The camera's 2D detections; the image size must be known.
+    config : SingleViewConfig, optional
+    height : float, mapping or sequence, optional
+        Stature (m) of everyone, or per track id (a {id: height} mapping or a list indexed by
+        id); default ``config.default_height``.
+    rng : Generator, int or None
+        Randomness of RANSAC and the subsampling.
+
+    Returns
+    -------
+    SingleViewResult
+
+    Raises
+    ------
+    EstimationFailed
+        Too few upright people, everyone in one spot, a camera looking straight down or
+        horizontally, or a focal interval wider than ``config.max_focal_uncertainty``. The
+        exception's ``partial`` attribute holds the best (untrustworthy) result when there is
+        one.
+    """
+    cfg = config or SingleViewConfig()
+    rng = np.random.default_rng(rng)
+    t0 = time.perf_counter()
+    size = tracks.require_image_size()
+    kp = tracks.canonical()
+    mask = upright_mask(kp, size, max_bend_deg=cfg.max_bend_deg,
+                        min_confidence=cfg.min_confidence, border_px=cfg.border_px,
+                        leg_torso_ratio=cfg.leg_torso_ratio,
+                        min_pixel_height=cfg.min_pixel_height)
+    n_det = tracks.n_detections
+    logger.info("camera %s: %d of %d detections upright", tracks.camera, int(mask.sum()), n_det)
+    ex = extract_observations(
+        tracks, mask, ratios=cfg.joint_height_ratios, upper_points=cfg.upper_points,
+        height=cfg.default_height if height is None else height,
+        default_height=cfg.default_height, min_confidence=cfg.min_confidence)
+    try:
+        fit = fit_observations(ex.obs, size, cfg, rng=rng)
+    except EstimationFailed as err:
+        partial = getattr(err, "partial", None)
+        new = EstimationFailed(
+            f"{err.message} ({int(mask.sum())} upright of {n_det} detections)",
+            file=tracks.source, camera=tracks.camera, field="keypoints")
+        if isinstance(partial, SingleViewFit):
+            new.partial = _result(tracks, ex, partial, mask, t0)  # type: ignore[attr-defined]
+        raise new from None
+    return _result(tracks, ex, fit, mask, t0)
+
+
+def _result(tracks: Tracks, ex, fit: SingleViewFit, mask: np.ndarray,  # type: ignore[no-untyped-def]
+            t0: float) -> SingleViewResult:
+    size = tracks.require_image_size()
+    diag = dict(fit.diagnostics)
+    diag.update(n_detections=tracks.n_detections, n_upright=int(mask.sum()),
+                time_s=time.perf_counter() - t0)
+    return SingleViewResult(
+        camera=tracks.camera, image_size=size, focal=fit.model.f,
+        focal_interval=fit.focal_interval, focal_sd_rel=fit.refined.log_f_sd,
+        principal_point=fit.model.c.copy(), principal_point_estimated=fit.principal_point_fitted,
+        normal_cam=fit.model.n.copy(), normal_sd_deg=fit.refined.normal_sd_deg,
+        camera_height=fit.model.d + float(fit.diagnostics["ankle_height_m"]),
+        upper_points=ex.names, frames=ex.frame, persons=ex.person, ankle=ex.obs.ankle,
+        upper=ex.obs.upper, offset=fit.offsets, inliers=fit.inliers, residuals=fit.rel_error,
+        residuals_px=fit.px_error, upright_mask=mask, diagnostics=diag)

@@ -1,0 +1,269 @@
+"""Stage I on observations: RANSAC, refinement rounds, principal point choice, interval, refusal.
+
+Separate from :mod:`cascalib.stages.single_view` (which reads :class:`~cascalib.tracks.Tracks`)
+so that benchmarks can feed bare ankle/upper pixel pairs, e.g. the paper's simulation protocol.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2, norm
+
+from cascalib.errors import EstimationFailed
+from cascalib.stages.single_view_refine import RefineResult, ransac, refine, spatial_cells
+from cascalib.stages.single_view_solver import (
+    GroundModel,
+    Observations,
+    dlt_estimate,
+    grid_estimate,
+    inlier_errors,
+)
+
+if TYPE_CHECKING:
+    from cascalib.stages.single_view import SingleViewConfig
+
+__all__ = ["SingleViewFit", "fit_observations", "focal_range"]
+
+logger = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+#: Below this many detections RANSAC cannot tell outliers from noise: every detection is used.
+_MIN_RANSAC = 6
+#: Image cells per side for spatial subsampling and for the independence clusters.
+_CELLS = 12
+
+
+@dataclass(frozen=True)
+class SingleViewFit:
+    """Outcome of :func:`fit_observations` (all arrays over the N input detections)."""
+
+    model: GroundModel
+    refined: RefineResult
+    focal_interval: tuple[float, float]
+    principal_point_fitted: bool
+    inliers: NDArray[np.bool_]
+    rel_error: F64
+    px_error: F64
+    offsets: F64
+    ankle_ratio: float
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+def focal_range(image_size: tuple[int, int], fov_deg: tuple[float, float]) -> tuple[float, float]:
+    """Focal lengths (px) of the widest and narrowest horizontal field of view."""
+    half_w = image_size[0] / 2.0
+    return (float(half_w / np.tan(np.radians(fov_deg[1]) / 2)),
+            float(half_w / np.tan(np.radians(fov_deg[0]) / 2)))
+
+
+def _subsample(obs: Observations, size: tuple[int, int], max_n: int,
+               rng: np.random.Generator) -> NDArray[np.int64]:
+    """Indices of at most ``max_n`` detections, spread evenly over image cells."""
+    if obs.n <= max_n:
+        return np.arange(obs.n)
+    order = rng.permutation(obs.n)
+    cell = spatial_cells(obs.ankle[order], size, _CELLS)
+    by_cell = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[by_cell], cell[by_cell])
+    rank = np.empty(obs.n, dtype=np.int64)
+    rank[by_cell] = np.arange(obs.n) - starts
+    # round robin over cells: every cell's first detection, then every cell's second, ...
+    pick = order[np.lexsort((rng.random(obs.n), rank))[:max_n]]
+    return np.sort(pick)
+
+
+def _clusters(obs: Observations, size: tuple[int, int]) -> NDArray[np.int64]:
+    """Independence clusters: the track id when known, else the image cell of the ankle."""
+    cells = spatial_cells(obs.ankle, size, _CELLS) + 1 + int(max(obs.group.max(initial=0), 0))
+    return np.where(obs.group >= 0, obs.group, cells)
+
+
+def _offsets(obs: Observations, ref: RefineResult) -> F64:
+    """Offsets with the refined upper-point ratios and per-person heights applied."""
+    scale = np.array([ref.height_scale.get(int(g), 1.0) for g in obs.group])
+    return obs.offset * ref.ratio_scale[None, :] * scale[:, None]
+
+
+def _classify(model: GroundModel, obs: Observations, offsets: F64, sigma_px: float,
+              cfg: SingleViewConfig) -> tuple[NDArray[np.bool_], F64, F64]:
+    """Paper inlier test, widened to ``adaptive_inlier_sigmas`` residual s.d. for small people."""
+    o = Observations(obs.ankle, obs.upper, offsets, obs.group)
+    rel, ang = inlier_errors(model, o)
+    ph = o.pixel_height()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        adapt = cfg.adaptive_inlier_sigmas * sigma_px / ph
+        ok = (rel < np.maximum(cfg.inlier_rel_error, adapt)) & (
+            ang < np.maximum(cfg.inlier_angle_deg, np.degrees(adapt)))
+    return ok, rel, rel * ph
+
+
+def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c: bool,
+            size: tuple[int, int]) -> RefineResult:
+    return refine(obs, model, fit_principal_point=fit_c, track_heights=cfg.track_heights,
+                  height_sd_rel=max(cfg.height_sd, 1e-3) / cfg.default_height,
+                  min_track_detections=cfg.min_track_detections,
+                  fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
+                  clusters=_clusters(obs, size), image_diag=float(np.hypot(*size)),
+                  loss=cfg.loss)
+
+
+def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleViewConfig,
+             rng: np.random.Generator, diag: dict[str, Any]) -> tuple[list[GroundModel],
+                                                                      NDArray[np.bool_]]:
+    """Starting models (RANSAC+DLT and the focal grid search) and the RANSAC inliers."""
+    inl = np.ones(o.n, dtype=bool)
+    starts: list[GroundModel] = []
+    if o.n >= _MIN_RANSAC:
+        rr = ransac(o, c0, f_range=f_rng, rel_thr=cfg.inlier_rel_error,
+                    ang_thr=cfg.inlier_angle_deg, max_iterations=cfg.ransac_max_iterations,
+                    min_sample_px=cfg.min_sample_spread * float(np.hypot(*c0 * 2)),
+                    rng=rng, confidence=cfg.ransac_confidence)
+        if not isinstance(rr, str):
+            diag["ransac_iterations"] = rr.n_iterations
+            diag["ransac_inliers"] = int(rr.inliers.sum())
+            starts.append(rr.model)
+            if rr.inliers.sum() >= 3:
+                inl = rr.inliers
+    else:
+        m = dlt_estimate(o, c0, f_rng)
+        if not isinstance(m, str):
+            starts.append(m)
+    # the 1-D focal search with a least-median score needs no inlier threshold: it rescues
+    # scenes whose noise exceeds the paper's 5 % test (few, small or noisy persons)
+    for subset in (inl, np.ones(o.n, dtype=bool)) if not inl.all() else (inl,):
+        g = grid_estimate(o.take(subset), c0, f_rng)
+        if not isinstance(g, str):
+            starts.append(g)
+    return starts, inl
+
+
+def _robust_start(o: Observations, starts: list[GroundModel], cfg: SingleViewConfig,
+                  size: tuple[int, int]) -> RefineResult:
+    """Refine every start on all detections with a redescending loss; keep the least median
+    relative error (scale-free, so starts with different noise estimates compare fairly)."""
+    best: tuple[float, RefineResult | None] = (np.inf, None)
+    for m in starts:
+        r = refine(o, m, fit_principal_point=False, track_heights=False, height_sd_rel=1.0,
+                   min_track_detections=cfg.min_track_detections,
+                   fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
+                   clusters=_clusters(o, size), image_diag=float(np.hypot(*size)),
+                   loss="cauchy", f_scale=2.0)
+        rel, _ = inlier_errors(r.model, Observations(o.ankle, o.upper, _offsets(o, r), o.group))
+        score = float(np.median(rel))
+        if score < best[0]:
+            best = (score, r)
+    assert best[1] is not None
+    return best[1]
+
+
+def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: SingleViewConfig, *,
+                     rng: np.random.Generator | int | None = None) -> SingleViewFit:
+    """Focal length, principal point and ankle plane from upright ankle/upper-point pairs.
+
+    Parameters
+    ----------
+    obs : Observations
+        Upright detections (N).
+    image_size : (int, int)
+    cfg : SingleViewConfig
+
+    Returns
+    -------
+    SingleViewFit
+
+    Raises
+    ------
+    EstimationFailed
+        With ``partial`` (a SingleViewFit) attached when a model was found but is not trusted.
+    """
+    rng = np.random.default_rng(rng)
+    w, h = image_size
+    img_diag = float(np.hypot(w, h))
+    c0 = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    f_rng = focal_range(image_size, cfg.fov_range_deg)
+    if obs.n < cfg.min_detections:
+        raise EstimationFailed(
+            f"only {obs.n} upright, fully visible persons found; at least "
+            f"{cfg.min_detections} are needed (people standing or walking upright, feet and "
+            "shoulders in view)")
+    ext = np.percentile(obs.ankle, 95, axis=0) - np.percentile(obs.ankle, 5, axis=0)
+    spread = float(np.hypot(*ext)) / img_diag
+    diag: dict[str, Any] = {"ankle_spread": spread, "n_used": obs.n}
+    if spread < cfg.min_ankle_spread:
+        raise EstimationFailed(
+            f"all upright persons stand in one spot (their feet span {100 * spread:.1f} % of "
+            f"the image diagonal, need {100 * cfg.min_ankle_spread:.0f} %): the focal length "
+            "is not observable; record people standing or walking at several places spread "
+            "over the floor")
+    o = obs.take(_subsample(obs, image_size, cfg.max_detections, rng))
+    starts, inl = _initial(o, c0, f_rng, cfg, rng, diag)
+    if not starts:
+        raise EstimationFailed("no focal length in the plausible range explains the "
+                               "upright persons (check the image size and the skeleton)")
+    best = _robust_start(o, starts, cfg, image_size)
+    for _ in range(3):  # re-classify with the noise level of the refined model, refit
+        inl, _, _ = _classify(best.model, o, _offsets(o, best), best.sigma_px, cfg)
+        if inl.sum() < 3:
+            break
+        best = _refine(o.take(inl), best.model, cfg, False, image_size)
+    fitted_c = False
+    if cfg.principal_point != "center" and inl.sum() >= 6:
+        with_c = _refine(o.take(inl), best.model, cfg, True, image_size)
+        gain = (best.cost - with_c.cost) / max(with_c.sigma_px, 1e-6) ** 2
+        diag.update(principal_point_sd=with_c.c_sd.tolist(), principal_point_gain=gain)
+        good = (with_c.c_sd.max() < cfg.principal_point_max_sd * img_diag
+                and gain > chi2.ppf(0.999, 2))
+        if cfg.principal_point == "estimate" or good:
+            best, fitted_c = with_c, True
+    return _finish(obs, best, fitted_c, image_size, cfg, diag)
+
+
+def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[int, int],
+            cfg: SingleViewConfig, diag: dict[str, Any]) -> SingleViewFit:
+    """Classify every detection, build the interval and refuse untrustworthy results."""
+    model = best.model
+    offsets = _offsets(obs, best)
+    inliers, rel, px = _classify(model, obs, offsets, best.sigma_px, cfg)
+    z = float(norm.ppf(0.5 + cfg.confidence_level / 2))
+    sd = best.log_f_sd if np.isfinite(best.log_f_sd) else np.inf
+    lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
+    pitch = float(np.degrees(np.arcsin(np.clip(-model.n[2], -1, 1))))
+    ankle_ratio = cfg.joint_height_ratios["ankle"]
+    diag.update(pitch_deg=pitch, sigma_px=best.sigma_px, confidence_level=cfg.confidence_level,
+                n_inliers=int(inliers.sum()), ratio_scale=best.ratio_scale.tolist(),
+                height_scale=best.height_scale, principal_point_fitted=fitted_c,
+                ankle_height_m=float(ankle_ratio * np.median(offsets[:, 0] / max(
+                    cfg.joint_height_ratios["shoulder"] - ankle_ratio, 1e-9))))
+    fit = SingleViewFit(model, best, (float(lo), float(hi)), fitted_c, inliers, rel, px,
+                        offsets, ankle_ratio, diag)
+    half = (hi - lo) / (2 * model.f)
+    if not half <= cfg.max_focal_uncertainty:
+        err = EstimationFailed(
+            f"focal length not determined: {100 * cfg.confidence_level:.0f} % interval "
+            f"[{lo:.0f}, {hi:.0f}] px around {model.f:.0f} px (+-{100 * half:.0f} %, limit "
+            f"{100 * cfg.max_focal_uncertainty:.0f} %): {_reason(pitch, diag['ankle_spread'])}")
+        err.partial = fit  # type: ignore[attr-defined]
+        raise err
+    if inliers.sum() < cfg.min_detections:
+        err = EstimationFailed(f"only {int(inliers.sum())} detections agree with the best model")
+        err.partial = fit  # type: ignore[attr-defined]
+        raise err
+    return fit
+
+
+def _reason(pitch: float, spread: float) -> str:
+    if pitch > 80:
+        return (f"the camera looks nearly straight down (pitch {pitch:.0f} deg): people's image "
+                "heights then do not depend on the focal length")
+    if abs(pitch) < 4:
+        return (f"the camera is nearly horizontal (pitch {pitch:.1f} deg): the vertical "
+                "vanishing point is at infinity and the focal length cancels out")
+    if spread < 0.15:
+        return (f"the upright persons cover only {100 * spread:.0f} % of the image diagonal; "
+                "record people at several places spread over the floor")
+    return "too few or too noisy upright detections"

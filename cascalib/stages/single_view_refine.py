@@ -1,0 +1,308 @@
+"""RANSAC over minimal DLT samples and the nonlinear refinement of focal length and ground plane.
+
+The refinement minimises the pixel distance between observed and predicted upper points
+(shoulder centre, neck, head top) over ``(log f, normal (2 dof), log d [, cx, cy])`` plus, when
+persons are tracked, one log-height per person tied to the assumed height by a Gaussian prior.
+Its Jacobian gives the focal length's confidence interval: the usual ``s^2 (J^T J)^-1`` and a
+cluster-robust sandwich (clusters = persons, or image cells when persons are not tracked, since
+repeated frames of one person at one spot are not independent), whichever is wider.
+
+References
+----------
+CasCalib paper, "Single View Geometric Calibration" (RANSAC, inlier tests 5 % / 2.86 deg).
+Fischler & Bolles, "Random sample consensus", CACM 1981. Torr & Zisserman, "MLESAC", CVIU 2000
+(the truncated-quadratic score used here).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from cascalib.stages.single_view_solver import (
+    GroundModel,
+    Observations,
+    dlt_estimate,
+    inlier_errors,
+)
+
+__all__ = ["RansacResult", "RefineResult", "ransac", "refine", "spatial_cells"]
+
+logger = logging.getLogger(__name__)
+F64 = NDArray[np.float64]
+
+#: Residual (px) given to an upper point whose ankle ray misses the ground plane, so that the
+#: least-squares problem stays finite; such points are gross outliers for any sensible model.
+_MISS_PX = 1000.0
+
+
+@dataclass(frozen=True)
+class RansacResult:
+    model: GroundModel
+    inliers: NDArray[np.bool_]
+    n_iterations: int
+
+
+def _inliers(model: GroundModel, obs: Observations, rel_thr: float, ang_thr: float
+             ) -> tuple[NDArray[np.bool_], float]:
+    rel, ang = inlier_errors(model, obs)
+    ok = (rel < rel_thr) & (ang < ang_thr)
+    # truncated quadratic (MSAC): prefers tight consensus sets among equally large ones
+    score = float(np.sum(1.0 - np.minimum((rel[ok] / rel_thr) ** 2, 1.0)))
+    return ok, score
+
+
+def ransac(obs: Observations, c: F64, *, f_range: tuple[float, float], rel_thr: float,
+           ang_thr: float, max_iterations: int, min_sample_px: float,
+           rng: np.random.Generator, confidence: float = 0.999) -> RansacResult | str:
+    """Largest consensus set over minimal 3-detection DLT solves.
+
+    Samples whose ankles lie closer than ``min_sample_px`` to each other are rejected before
+    solving (three people in one spot do not determine the focal length).
+
+    Returns
+    -------
+    RansacResult or str
+        The best model refit (DLT) on its inliers, or a message when no sample gave a model.
+    """
+    n = obs.n
+    best: tuple[float, GroundModel | None, NDArray[np.bool_]] = (-1.0, None,
+                                                                 np.zeros(n, bool))
+    needed, it = max_iterations, 0
+    tries = 0
+    while it < min(needed, max_iterations) and tries < 20 * max_iterations:
+        tries += 1
+        idx = rng.choice(n, 3, replace=False) if n > 3 else np.arange(n)
+        a = obs.ankle[idx]
+        gaps = np.linalg.norm(a[:, None] - a[None], axis=-1)[np.triu_indices(len(idx), 1)]
+        if n > 3 and gaps.min() < min_sample_px:
+            continue
+        it += 1
+        model = dlt_estimate(obs.take(idx), c, f_range)
+        if isinstance(model, str):
+            if n <= 3:
+                break
+            continue
+        ok, score = _inliers(model, obs, rel_thr, ang_thr)
+        if score > best[0]:
+            best = (score, model, ok)
+            p_good = min(float(ok.mean()) ** 3, 1.0 - 1e-12)
+            needed = (max_iterations if p_good < 1e-9 else
+                      int(np.ceil(np.log(1 - confidence) / np.log1p(-p_good))))
+        if n <= 3:
+            break
+    if best[1] is None:
+        return "no 3-person sample gave a valid focal length and ground plane"
+    model, ok = best[1], best[2]
+    if ok.sum() >= 3:
+        refit = dlt_estimate(obs.take(ok), c, f_range)
+        if not isinstance(refit, str):
+            ok2, _ = _inliers(refit, obs, rel_thr, ang_thr)
+            if ok2.sum() >= ok.sum():
+                model, ok = refit, ok2
+    return RansacResult(model, ok, it)
+
+
+def spatial_cells(points: F64, size: tuple[int, int], n_cells: int) -> NDArray[np.int64]:
+    """Index of the ``n_cells x n_cells`` image cell holding each point (N, 2)."""
+    w, h = size
+    ix = np.clip((points[:, 0] / w * n_cells).astype(int), 0, n_cells - 1)
+    iy = np.clip((points[:, 1] / h * n_cells).astype(int), 0, n_cells - 1)
+    return (iy * n_cells + ix).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """Refined model with its uncertainty.
+
+    Attributes
+    ----------
+    model : GroundModel
+    log_f_sd : float
+        1-sigma of ``log f`` (relative focal uncertainty).
+    c_sd : ndarray, shape (2,)
+        1-sigma of the principal point (px); zeros when it was held fixed.
+    normal_sd_deg : float
+        1-sigma of the normal direction (deg, root of the two tangent variances).
+    sigma_px : float
+        Robust scale of the pixel residuals.
+    cost : float
+        Sum of squared residuals (px^2) over valid upper points, robust-loss-free.
+    height_scale : dict of int to float
+        Estimated height multiplier per tracked person (1 = the assumed height).
+    ratio_scale : ndarray, shape (K,)
+        Estimated multiplier of each upper point's offset (column 0 fixed at 1).
+    """
+
+    model: GroundModel
+    log_f_sd: float
+    c_sd: F64
+    normal_sd_deg: float
+    sigma_px: float
+    cost: float
+    height_scale: dict[int, float]
+    ratio_scale: F64
+
+
+def _tangent_basis(n: F64) -> tuple[F64, F64]:
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
+class _Problem:
+    """Parameter packing and residuals of the refinement (one instance per solve)."""
+
+    def __init__(self, obs: Observations, model: GroundModel, fit_c: bool,
+                 height_groups: NDArray[np.int64], n_heights: int, prior_w: float,
+                 n_ratios: int, ratio_w: float, c_scale: float) -> None:
+        self.obs, self.n0, self.fit_c = obs, model.n, fit_c
+        self.e1, self.e2 = _tangent_basis(model.n)
+        self.c0, self.c_scale = model.c, c_scale
+        self.hg, self.n_h, self.prior_w = height_groups, n_heights, prior_w
+        self.n_r, self.ratio_w = n_ratios, ratio_w
+        self.valid = obs.valid
+        self.n_base = 6 if fit_c else 4
+
+    def x0(self, model: GroundModel) -> F64:
+        base = [np.log(model.f), 0.0, 0.0, np.log(model.d)]
+        if self.fit_c:
+            base += [0.0, 0.0]
+        return np.r_[base, np.zeros(self.n_r + self.n_h)]
+
+    def model(self, x: F64) -> GroundModel:
+        n = self.n0 + x[1] * self.e1 + x[2] * self.e2
+        c = self.c0 + (x[4:6] * self.c_scale if self.fit_c else 0.0)
+        return GroundModel(float(np.exp(x[0])), np.asarray(c, float), n / np.linalg.norm(n),
+                           float(np.exp(x[3])))
+
+    def offsets(self, x: F64) -> F64:
+        off = self.obs.offset
+        if self.n_r:
+            # column 0 (shoulder centre) anchors the scale; the others' ratios are refined
+            off = off * np.exp(np.r_[0.0, x[self.n_base:self.n_base + self.n_r]])[None, :]
+        if self.n_h:
+            eta = np.r_[x[self.n_base + self.n_r:], 0.0]  # index -1 -> no height parameter
+            off = off * np.exp(eta[self.hg])[:, None]
+        return off
+
+    def pixel_residuals(self, x: F64) -> F64:
+        pred = self.model(x).predict_upper(self.obs.ankle, self.offsets(x))
+        r = (pred - self.obs.upper)[self.valid]
+        return np.where(np.isfinite(r), r, _MISS_PX).ravel()
+
+    def __call__(self, x: F64) -> F64:
+        b, r = self.n_base, self.n_r
+        return np.r_[self.pixel_residuals(x), self.ratio_w * x[b:b + r],
+                     self.prior_w * x[b + r:]]
+
+    def sparsity(self) -> lil_matrix:
+        n_res = 2 * int(self.valid.sum())
+        n_extra = self.n_r + self.n_h
+        S = lil_matrix((n_res + n_extra, self.n_base + n_extra), dtype=int)
+        S[:n_res, : self.n_base] = 1
+        det, col = (np.repeat(v, 2) for v in np.nonzero(self.valid))
+        rows = np.arange(n_res)
+        ratio_rows = col > 0
+        if self.n_r:
+            S[rows[ratio_rows], self.n_base + col[ratio_rows] - 1] = 1
+        has = self.hg[det] >= 0
+        S[rows[has], self.n_base + self.n_r + self.hg[det][has]] = 1
+        S[n_res + np.arange(n_extra), self.n_base + np.arange(n_extra)] = 1
+        return S
+
+
+def _robust_sigma(r: F64) -> float:
+    r = r[np.abs(r) < _MISS_PX]
+    return float(1.4826 * np.median(np.abs(r))) if r.size else 1.0
+
+
+def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int) -> F64:
+    """Classic or cluster-sandwich covariance, whichever gives ``log f`` the larger variance."""
+    H = J.T @ J
+    # a (near-)singular normal matrix means an unobservable parameter: infinite variance, not
+    # the pseudo-inverse's silent zero
+    d = np.sqrt(np.maximum(np.diag(H), 1e-300))
+    Hn = H / d[:, None] / d[None, :]
+    if not np.all(np.isfinite(Hn)) or np.linalg.cond(Hn) > 1e12:
+        return np.full_like(H, np.inf)
+    Hinv = np.linalg.inv(Hn) / d[:, None] / d[None, :]
+    dof = max(len(r) - n_params, 1)
+    classic = Hinv * float(r @ r) / dof
+    scores = J * r[:, None]
+    uniq, inv = np.unique(clusters, return_inverse=True)
+    if len(uniq) < 5:
+        return classic
+    S = np.zeros((len(uniq), J.shape[1]))
+    np.add.at(S, inv, scores)
+    sandwich = Hinv @ (S.T @ S) @ Hinv * len(uniq) / (len(uniq) - 1)
+    # the focal length (parameter 0) is what the interval is reported for
+    return sandwich if sandwich[0, 0] > classic[0, 0] else classic
+
+
+def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
+           track_heights: bool, height_sd_rel: float, min_track_detections: int,
+           fit_ratios: bool, ratio_sd_rel: float,
+           clusters: NDArray[np.int64], image_diag: float, loss: str = "huber",
+           f_scale: float = 2.0, max_nfev: int = 100) -> RefineResult:
+    """Nonlinear least squares on all inliers (see module docstring).
+
+    Parameters
+    ----------
+    obs : Observations
+        Inlier detections (N).
+    model : GroundModel
+        Starting point (DLT on the inliers).
+    fit_principal_point : bool
+        Also estimate ``(cx, cy)``.
+    track_heights : bool
+        One height multiplier per person (``obs.group`` >= 0 with at least
+        ``min_track_detections`` detections), with prior sd ``height_sd_rel`` (relative).
+    fit_ratios : bool
+        Refine the height ratio of every upper point but the first (shoulder centre), with
+        prior sd ``ratio_sd_rel`` (relative): detectors place the neck differently.
+    clusters : ndarray of int, shape (N,)
+        Independence clusters for the sandwich covariance.
+    image_diag : float
+        Image diagonal (px), scales the principal-point parameters.
+    loss, f_scale : str, float
+        Robust loss and its scale in robust residual s.d. of the starting model.
+    """
+    hg = np.full(obs.n, -1, dtype=np.int64)
+    ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
+    if track_heights:
+        g, counts = np.unique(obs.group[obs.group >= 0], return_counts=True)
+        ids = g[counts >= min_track_detections]
+        hg = np.where(np.isin(obs.group, ids), np.searchsorted(ids, obs.group), -1)
+    sigma0 = _robust_sigma((model.residuals(obs)[obs.valid]).ravel())
+    prior_w = max(sigma0, 0.05) / height_sd_rel
+    n_r = obs.upper.shape[1] - 1 if fit_ratios else 0
+    prob = _Problem(obs, model, fit_principal_point, hg, len(ids), prior_w,
+                    n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag)
+    # grouped (sparse) differencing pays off only with many per-person height columns
+    kw = dict(jac_sparsity=prob.sparsity()) if len(ids) > 8 else {}
+    res = least_squares(prob, prob.x0(model), loss=loss, f_scale=max(f_scale * sigma0, 0.05),
+                        x_scale="jac", max_nfev=max_nfev, ftol=1e-8, xtol=1e-10, **kw)
+    logger.debug("refine: %d residuals, %d params, %d evaluations, status %d", len(res.fun),
+                 len(res.x), res.nfev, res.status)
+    # dense for the covariance: 4-6 columns + one per refined ratio and tracked person
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
+    fitted = prob.model(res.x)
+    r_px = prob.pixel_residuals(res.x)
+    det = np.repeat(np.nonzero(obs.valid)[0], 2)
+    clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids))]
+    r_all = np.r_[r_px, res.fun[len(r_px):]]
+    cov = _covariance(J, r_all, clus, len(res.x))
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    c_sd = sd[4:6] * image_diag if fit_principal_point else np.zeros(2)
+    b = prob.n_base
+    heights = {int(i): float(np.exp(v)) for i, v in zip(ids, res.x[b + n_r:], strict=True)}
+    ratios = np.exp(np.r_[0.0, res.x[b:b + n_r], np.zeros(obs.upper.shape[1] - 1 - n_r)])
+    return RefineResult(fitted, float(sd[0]), c_sd, float(np.degrees(np.hypot(sd[1], sd[2]))),
+                        _robust_sigma(r_px), float(np.sum(r_px[np.abs(r_px) < _MISS_PX] ** 2)),
+                        heights, ratios)

@@ -1,0 +1,323 @@
+"""Focal length and ground plane of one camera from upright people: model, DLT, RANSAC, refinement.
+
+Geometry (camera coordinates, OpenCV axes, metres). A standing person's ankle point ``A`` lies on
+the *ankle plane* ``n . A = -d`` (``n`` the unit ground normal pointing up, ``d`` > 0 the distance
+from the camera centre to that plane); an upper body point ``k`` (shoulder centre, neck, head
+top) lies straight above it, ``U_k = A + delta_k n``, with ``delta_k`` its vertical distance from
+the ankle in metres. With ``K = [[f, 0, cx], [0, f, cy], [0, 0, 1]]`` the pixels are
+``a ~ K A`` and ``u_k ~ K U_k``.
+
+The linear solve is the DLT of the CasCalib supplement (Eq. "cross_prod"/"DLT"): the cross
+product ``u_k x (w a + delta_k m) = 0`` with ``m ~ K n`` (the vertical vanishing point) and
+``w`` the ankle depth, generalised to any number of upper points per person. The per-person
+depths are eliminated in closed form, so the solve is a 3x3 eigenproblem whatever the number of
+detections, and pixels are Hartley-normalised (centred on the principal point, isotropically
+scaled) first. The focal length then follows from the ankles being coplanar (supplement, "Ground
+normal extraction"), as a least-squares solve over all ankles instead of one ankle pair.
+
+References
+----------
+CasCalib paper, section "Single View Geometric Calibration" and supplement "Camera Calibration
+Derivation - Details". R. Hartley, "In defense of the eight-point algorithm", PAMI 1997.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "GroundModel",
+    "Observations",
+    "hartley_scale",
+    "vanishing_point",
+    "dlt_estimate",
+    "grid_estimate",
+    "inlier_errors",
+]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Ankle/upper-point pixel pairs of upright persons.
+
+    Parameters
+    ----------
+    ankle : ndarray, shape (N, 2)
+        Ankle-centre pixel of each detection.
+    upper : ndarray, shape (N, K, 2)
+        Upper points (e.g. shoulder centre, neck, head top) in pixels; NaN where missing.
+    offset : ndarray, shape (N, K)
+        Vertical distance (m) of each upper point above the ankle point; NaN where missing.
+    group : ndarray of int, shape (N,)
+        Person (track) of each detection, for shared heights and clustered uncertainty;
+        every detection its own group when persons are not tracked.
+    """
+
+    ankle: F64
+    upper: F64
+    offset: F64
+    group: NDArray[np.int64]
+
+    @property
+    def n(self) -> int:
+        return int(self.ankle.shape[0])
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """(N, K): upper point present."""
+        return np.isfinite(self.upper[..., 0]) & np.isfinite(self.offset)
+
+    def take(self, idx: NDArray[np.int64] | NDArray[np.bool_]) -> Observations:
+        """Subset of detections."""
+        return Observations(self.ankle[idx], self.upper[idx], self.offset[idx], self.group[idx])
+
+    def pixel_height(self) -> F64:
+        """(N,) pixel height of each person: distance from the ankle to the highest upper point.
+
+        Used to normalise the paper's pixel inlier test (5 % of the person's pixel height).
+        """
+        dist = np.linalg.norm(self.upper - self.ankle[:, None, :], axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = np.nanargmax(np.where(self.valid, self.offset, -np.inf), axis=1)
+            rows = np.arange(self.n)
+            # the ankle-to-highest-point length: with the paper's ankle-shoulder pairs this is
+            # the pixel height the paper normalises by (slightly conservative for head tops)
+            return dist[rows, k]
+
+
+@dataclass(frozen=True)
+class GroundModel:
+    """Pinhole intrinsics (square pixels, no skew) and the ankle plane in camera coordinates.
+
+    Parameters
+    ----------
+    f : float
+        Focal length (px).
+    c : ndarray, shape (2,)
+        Principal point (px).
+    n : ndarray, shape (3,)
+        Unit ground normal in camera coordinates, pointing up (away from the ground).
+    d : float
+        Distance (m) from the camera centre to the ankle plane.
+    """
+
+    f: float
+    c: F64
+    n: F64
+    d: float
+
+    def ankle_points(self, ankle: F64) -> F64:
+        """Back-project ankle pixels (..., 2) onto the ankle plane: camera points (..., 3).
+
+        NaN where the ray misses the plane (above the horizon).
+        """
+        r = np.concatenate([(ankle - self.c) / self.f, np.ones(ankle.shape[:-1] + (1,))], -1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = -self.d / (r @ self.n)
+        s = np.where(s > 0, s, np.nan)
+        return s[..., None] * r
+
+    def predict_upper(self, ankle: F64, offset: F64) -> F64:
+        """Predicted upper pixels (N, K, 2) for ankles (N, 2) and vertical offsets (N, K) in m."""
+        A = self.ankle_points(ankle)
+        U = A[:, None, :] + offset[..., None] * self.n
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(U[..., 2] > 1e-9, U[..., 2], np.nan)
+            return self.f * U[..., :2] / z[..., None] + self.c
+
+    def residuals(self, obs: Observations) -> F64:
+        """(N, K, 2) predicted minus observed upper pixels (NaN where missing)."""
+        return self.predict_upper(obs.ankle, obs.offset) - obs.upper
+
+    def flipped(self) -> GroundModel:
+        return replace(self, n=-self.n)
+
+
+def hartley_scale(points: F64, centre: F64) -> float:
+    """Isotropic scale that brings points to mean distance sqrt(2) from ``centre`` (Hartley 1997).
+
+    Only the scale is free: the translation must be the principal point to keep K's structure.
+    """
+    dist = np.linalg.norm(points.reshape(-1, 2) - centre, axis=1)
+    mean = float(np.nanmean(dist)) if np.isfinite(dist).any() else 1.0
+    return float(np.sqrt(2.0) / max(mean, 1e-9))
+
+
+def _skew(v: F64) -> F64:
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def _homog(p: F64) -> F64:
+    return np.concatenate([p, np.ones(p.shape[:-1] + (1,))], -1)
+
+
+def vanishing_point(obs: Observations, c: F64, scale: float) -> tuple[F64, F64]:
+    """Vertical vanishing point ``m ~ K' n`` (normalised pixels) with per-detection depths ``w``.
+
+    Solves the supplement's DLT ``u_k x (w a + delta_k m) = 0`` with ``w`` eliminated: for fixed
+    ``m`` the best ``w_i`` is a 1-D least squares, which leaves the 3x3 problem
+    ``min |m|=1  m^T (sum_i C_i^T P_i C_i) m``.
+
+    Returns
+    -------
+    m : ndarray, shape (3,)
+        Unit vector, the vertical vanishing point in Hartley-normalised homogeneous pixels.
+    w : ndarray, shape (N,)
+        Ankle depths up to the common scale of ``m``.
+    """
+    valid = obs.valid
+    a = _homog((obs.ankle - c) * scale)                       # (N, 3)
+    u = _homog((np.where(valid[..., None], obs.upper, 0.0) - c) * scale)  # (N, K, 3)
+    S = _skew(u) * valid[..., None, None]                       # (N, K, 3, 3)
+    delta = np.where(valid, obs.offset, 0.0)
+    # stacked over k: b_i = [u_k]x a_i (N, K, 3), C_i = delta_k [u_k]x (N, K, 3, 3)
+    b = np.einsum("nkij,nj->nki", S, a)
+    C = S * delta[..., None, None]
+    bb = np.einsum("nki,nki->n", b, b)
+    bC = np.einsum("nki,nkij->nj", b, C)                        # (N, 3)
+    CC = np.einsum("nkij,nkil->njl", C, C)                      # (N, 3, 3)
+    M = (CC - bC[:, :, None] * bC[:, None, :] / np.maximum(bb, 1e-300)[:, None, None]).sum(0)
+    _, vecs = np.linalg.eigh(M)
+    m = vecs[:, 0]
+    w = -(bC @ m) / np.maximum(bb, 1e-300)
+    return m, w
+
+
+def _model_from_vp(m: F64, w: F64, a_n: F64, c: F64, scale: float, f_n: float
+                   ) -> GroundModel | str:
+    """Ground model from the vanishing point, depths and a normalised focal length ``f_n``."""
+    n = np.array([m[0] / f_n, m[1] / f_n, m[2]])
+    lam = np.linalg.norm(n) * np.sign(np.median(w))
+    if not np.isfinite(lam) or lam == 0:
+        return "vanishing point at infinity in every direction"
+    n = n / lam
+    z = w / lam                                                  # ankle depths (m)
+    A = z[:, None] * np.c_[a_n / f_n, np.ones(len(z))]
+    d = -float(np.median(A @ n))
+    if not d > 0:
+        return "ankles and upper points imply the camera is below the ground"
+    return GroundModel(float(f_n / scale), c.copy(), n, d)
+
+
+def dlt_estimate(obs: Observations, c: F64, f_range: tuple[float, float]
+                 ) -> GroundModel | str:
+    """Closed-form focal length and ankle plane (supplement DLT), or a message saying why not.
+
+    Parameters
+    ----------
+    obs : Observations
+        At least 3 detections at distinct places.
+    c : ndarray, shape (2,)
+        Principal point (px), held fixed as in the paper.
+    f_range : (float, float)
+        Plausible focal lengths (px); solutions outside are rejected.
+
+    Returns
+    -------
+    GroundModel or str
+        The model, or a message when the system has no valid solution (e.g. negative ``1/f^2``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> obs = Observations(np.array([[0., 500.], [10., 500.], [20., 500.]]),
+    ...                    np.array([[[0., 400.]], [[10., 400.]], [[20., 400.]]]),
+    ...                    np.ones((3, 1)), np.arange(3))
+    >>> dlt_estimate(obs, np.array([960., 540.]), (100., 10000.))  # doctest: +ELLIPSIS
+    'focal length ... px outside the plausible range ...'
+    """
+    scale = hartley_scale(np.concatenate([obs.ankle, obs.upper.reshape(-1, 2)]), c)
+    m, w = vanishing_point(obs, c, scale)
+    a_n = (obs.ankle - c) * scale
+    # coplanar ankles: w_i (g (m_x a_x + m_y a_y) + m_z) = c0 for all i, linear in g = 1/f'^2, c0
+    q = a_n @ m[:2]
+    Amat = np.c_[w * q, -np.ones(obs.n)]
+    rhs = -w * m[2]
+    sol, *_ = np.linalg.lstsq(Amat, rhs, rcond=None)
+    g = float(sol[0])
+    f_lo, f_hi = f_range
+    if not (g > 0 and f_lo * scale <= 1 / np.sqrt(g) <= f_hi * scale):
+        if not g > 0:
+            return f"no real focal length fits these detections (1/f^2 = {g:.3g} < 0)"
+        return (f"focal length {1 / np.sqrt(g) / scale:.0f} px outside the plausible range "
+                f"[{f_lo:.0f}, {f_hi:.0f}]")
+    return _model_from_vp(m, w, a_n, c, scale, 1.0 / np.sqrt(g))
+
+
+def _depth_plane(obs: Observations, f: float, c: F64, n: F64) -> float:
+    """Ankle-plane distance for a given focal and normal: median of per-detection estimates."""
+    valid = obs.valid
+    ra = _homog((obs.ankle - c) / f)
+    ru = _homog((np.where(valid[..., None], obs.upper, 0.0) - c) / f)
+    ca = np.cross(ru, ra[:, None, :])
+    cn = np.cross(ru, n)
+    # s ra + delta n is parallel to ru  ->  s (ru x ra) = -delta (ru x n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = -np.einsum("nki,nki->nk", ca, cn) * obs.offset / np.einsum("nki,nki->nk", ca, ca)
+    d = -(s * (ra @ n)[:, None])[valid]
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(np.median(d)) if d.size else np.nan
+
+
+def grid_estimate(obs: Observations, c: F64, f_range: tuple[float, float],
+                  n_grid: int = 60) -> GroundModel | str:
+    """Focal by a 1-D search: for each candidate ``f`` the normal is ``K^-1 m`` (``m`` the vertical
+    vanishing point, which does not depend on ``f``) and the plane distance a median; keep the
+    ``f`` with the smallest reprojection error. Slower than the DLT but never fails on the sign
+    of ``1/f^2``, so it rescues noisy few-person scenes."""
+    scale = hartley_scale(np.concatenate([obs.ankle, obs.upper.reshape(-1, 2)]), c)
+    m, _ = vanishing_point(obs, c, scale)
+    best: tuple[float, GroundModel | None] = (np.inf, None)
+    for f in np.geomspace(f_range[0], f_range[1], n_grid):
+        n = np.array([m[0] / (f * scale), m[1] / (f * scale), m[2]])
+        n /= np.linalg.norm(n)
+        for sign in (1.0, -1.0):
+            d = _depth_plane(obs, f, c, sign * n)
+            if not d > 0:
+                continue
+            model = GroundModel(float(f), c.copy(), sign * n, d)
+            r = model.residuals(obs)[obs.valid]
+            cost = float(np.nanmedian(np.sum(r * r, -1))) if np.isfinite(r).any() else np.inf
+            if np.isfinite(r).all(-1).mean() < 0.9:
+                cost = np.inf
+            if cost < best[0]:
+                best = (cost, model)
+    return best[1] if best[1] is not None else "no focal length in range explains the detections"
+
+
+def inlier_errors(model: GroundModel, obs: Observations) -> tuple[F64, F64]:
+    """The paper's two inlier tests per detection (worst over its upper points).
+
+    Returns
+    -------
+    rel : ndarray, shape (N,)
+        Predicted-minus-observed upper pixel distance over the person's pixel height.
+    angle_deg : ndarray, shape (N,)
+        Angle (deg) at the ankle between the observed and predicted ankle-to-upper directions.
+        Both are ``inf`` where the model cannot predict (ankle above the horizon).
+    """
+    pred = model.predict_upper(obs.ankle, obs.offset)
+    err = np.linalg.norm(pred - obs.upper, axis=-1)
+    v_obs = obs.upper - obs.ankle[:, None, :]
+    v_pred = pred - obs.ankle[:, None, :]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosang = np.einsum("nki,nki->nk", v_obs, v_pred) / (
+            np.linalg.norm(v_obs, axis=-1) * np.linalg.norm(v_pred, axis=-1))
+        ang = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+        rel = err / obs.pixel_height()[:, None]
+    valid = obs.valid
+    bad = valid & ~np.isfinite(rel)
+    rel = np.where(bad, np.inf, rel)
+    ang = np.where(bad | (valid & ~np.isfinite(ang)), np.inf, ang)
+    rel = np.max(np.where(valid, rel, -np.inf), axis=1)
+    ang = np.max(np.where(valid, ang, -np.inf), axis=1)
+    return rel, ang

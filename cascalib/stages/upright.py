@@ -1,0 +1,195 @@
+"""Upright-person filter and the ankle/upper-point observations it feeds to Stage I.
+
+The paper (supplement, "Filtering") keeps a 2D pose when its legs and trunk are straight: the
+angles at the knee (ankle-knee-hip) and at the hip (knee-hip-shoulder) must both be close to
+180 deg, on the straighter side of the body. The printed equation subtracts pi from a cosine and
+measures the second angle at the knee; we implement its evident intent with angles in degrees
+and the second angle at the hip. We also reject
+
+* truncated or unreliable persons: a required joint missing, below ``min_confidence``, or within
+  ``border_px`` of the image edge (a clipped person has a wrong ankle);
+* foreshortened legs (sitting, kneeling, crouching seen from the front, where the angles can look
+  straight): the image ratio of ankle-to-hip over hip-to-shoulder length must be near the
+  standing value (0.491 H / 0.288 H = 1.7 with Drillis-Contini segment heights);
+* persons smaller than ``min_pixel_height`` (ankle to shoulder), whose joints are too noisy.
+
+Body point heights (fractions of stature H) from Drillis & Contini (1966), as tabulated in
+D. A. Winter, "Biomechanics and Motor Control of Human Movement", 4th ed., Fig. 4.1: ankle 0.039,
+knee 0.285, hip 0.530, shoulder 0.818, top of head 1.0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.single_view_solver import Observations
+from cascalib.tracks import Tracks
+
+__all__ = ["Extracted", "bend_angle", "upright_mask", "extract_observations", "UPPER_POINTS"]
+
+F64 = NDArray[np.float64]
+
+#: Upper points Stage I can use; each is the mean of the listed canonical joints.
+UPPER_POINTS: dict[str, tuple[str, ...]] = {
+    "shoulder": ("left_shoulder", "right_shoulder"),
+    "neck": ("neck",),
+    "head_top": ("head_top",),
+}
+_REQUIRED = ("left_ankle", "right_ankle", "left_knee", "right_knee", "left_hip", "right_hip",
+             "left_shoulder", "right_shoulder")
+
+
+def _angle_deg(u: F64, v: F64) -> F64:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.sum(u * v, -1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def bend_angle(kp: F64) -> F64:
+    """Straightness of each pose (supplement Eq. "supp_angle_filter", in degrees).
+
+    Parameters
+    ----------
+    kp : ndarray, shape (..., 26, >=2)
+        Canonical keypoints.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``min over sides of (180 - knee angle) + (180 - hip angle)``; 0 for a straight pose,
+        NaN where a joint is missing.
+    """
+    J = CANONICAL_INDEX
+    out = []
+    for side in ("left", "right"):
+        ankle, knee = kp[..., J[f"{side}_ankle"], :2], kp[..., J[f"{side}_knee"], :2]
+        hip, shoulder = kp[..., J[f"{side}_hip"], :2], kp[..., J[f"{side}_shoulder"], :2]
+        knee_dev = 180.0 - _angle_deg(ankle - knee, hip - knee)
+        hip_dev = 180.0 - _angle_deg(knee - hip, shoulder - hip)
+        out.append(knee_dev + hip_dev)
+    return np.fmin(out[0], out[1])
+
+
+def _mid(kp: F64, a: str, b: str) -> F64:
+    return 0.5 * (kp[..., CANONICAL_INDEX[a], :2] + kp[..., CANONICAL_INDEX[b], :2])
+
+
+def upright_mask(kp: F64, image_size: tuple[int, int], *, max_bend_deg: float,
+                 min_confidence: float, border_px: float, leg_torso_ratio: tuple[float, float],
+                 min_pixel_height: float) -> NDArray[np.bool_]:
+    """Which poses stand upright, untruncated and confidently detected.
+
+    Parameters
+    ----------
+    kp : ndarray, shape (F, P, 26, 3)
+        Canonical keypoints.
+    image_size : (int, int)
+        (width, height).
+
+    Returns
+    -------
+    ndarray of bool, shape (F, P)
+    """
+    w, h = image_size
+    req = kp[..., [CANONICAL_INDEX[j] for j in _REQUIRED], :]
+    x, y, conf = req[..., 0], req[..., 1], req[..., 2]
+    with np.errstate(invalid="ignore"):
+        present = (np.isfinite(x) & (conf >= min_confidence)).all(-1)
+        inside = ((x >= border_px) & (x <= w - 1 - border_px)
+                  & (y >= border_px) & (y <= h - 1 - border_px)).all(-1)
+        ankle = _mid(kp, "left_ankle", "right_ankle")
+        hip = _mid(kp, "left_hip", "right_hip")
+        shoulder = _mid(kp, "left_shoulder", "right_shoulder")
+        leg = np.linalg.norm(ankle - hip, axis=-1)
+        torso = np.linalg.norm(hip - shoulder, axis=-1)
+        ratio = leg / torso
+        tall = np.linalg.norm(ankle - shoulder, axis=-1) >= min_pixel_height
+        straight = bend_angle(kp) <= max_bend_deg
+        proportions = (ratio >= leg_torso_ratio[0]) & (ratio <= leg_torso_ratio[1])
+        # the shoulders must be above the ankles in the image for a camera that is not upside
+        # down; a lying person seen head-down is not upright
+        upward = shoulder[..., 1] < ankle[..., 1]
+    return present & inside & tall & straight & proportions & upward
+
+
+def _person_heights(height: float | Mapping[int, float] | Sequence[float], default: float,
+                    ids: NDArray[np.int64]) -> F64:
+    """Height (m) of each detection from a scalar, a {track_id: height} map or a list by id."""
+    if np.isscalar(height):
+        return np.full(len(ids), float(height))  # type: ignore[arg-type]
+    lookup = dict(height) if isinstance(height, Mapping) else dict(enumerate(height))
+    return np.array([float(lookup.get(int(i), default)) for i in ids])
+
+
+@dataclass(frozen=True)
+class Extracted:
+    """Observations of the upright detections and where they come from.
+
+    Attributes
+    ----------
+    obs : Observations
+        ``offset[i, k] = H_i (ratio_k - ratio_ankle)``; ``group`` the track id (-1 unknown).
+    frame, person : ndarray of int, shape (N,)
+        Frame and person slot of each detection.
+    stature : ndarray, shape (N,)
+        The height assumed for each detection (m).
+    names : tuple of str
+        The upper point of each column of ``obs.upper`` (first: "shoulder").
+    """
+
+    obs: Observations
+    frame: NDArray[np.int64]
+    person: NDArray[np.int64]
+    stature: F64
+    names: tuple[str, ...]
+
+
+def extract_observations(tracks: Tracks, mask: NDArray[np.bool_], *,
+                         ratios: Mapping[str, float], upper_points: Sequence[str],
+                         height: float | Mapping[int, float] | Sequence[float],
+                         default_height: float, min_confidence: float
+                         ) -> Extracted:
+    """Ankle centres and upper points of the masked detections.
+
+    Parameters
+    ----------
+    tracks : Tracks
+    mask : ndarray of bool, shape (F, P)
+        Upright detections to use.
+    ratios : mapping
+        Height above the ground as a fraction of stature, for ``"ankle"`` and each upper point.
+    upper_points : sequence of str
+        Names from :data:`UPPER_POINTS`; a point is used only where the skeleton has its joints
+        natively (a neck derived from the shoulders would count the shoulders twice).
+    height : float, mapping or sequence
+        Stature (m): one for everyone, or per track id.
+
+    Returns
+    -------
+    Extracted
+    """
+    kp = tracks.canonical()
+    f_idx, p_idx = np.nonzero(mask)
+    sel = kp[f_idx, p_idx]                                       # (N, 26, 3)
+    ankle = _mid(sel, "left_ankle", "right_ankle")
+    # the shoulder centre is always column 0: it anchors the scale in the refinement
+    names = ["shoulder"] + [u for u in upper_points if u != "shoulder" and all(
+        tracks.skeleton.index(j) is not None for j in UPPER_POINTS[u])]
+    ids = (tracks.track_ids[f_idx, p_idx] if tracks.track_ids is not None
+           else np.full(len(f_idx), -1, dtype=np.int64))
+    stature = _person_heights(height, default_height, ids)
+    upper = np.full((len(f_idx), len(names), 2), np.nan)
+    offset = np.full((len(f_idx), len(names)), np.nan)
+    for k, name in enumerate(names):
+        joints = sel[:, [CANONICAL_INDEX[j] for j in UPPER_POINTS[name]], :]
+        with np.errstate(invalid="ignore"):
+            ok = (np.isfinite(joints[..., 0]) & (joints[..., 2] >= min_confidence)).all(-1)
+        upper[ok, k] = joints[ok, :, :2].mean(1)
+        offset[ok, k] = stature[ok] * (ratios[name] - ratios["ankle"])
+    obs = Observations(ankle, upper, offset, ids.astype(np.int64))
+    return Extracted(obs, f_idx.astype(np.int64), p_idx.astype(np.int64), stature, tuple(names))
