@@ -75,7 +75,7 @@ PRESETS: dict[str, SceneConfig] = {
         duration_s=60,
         people=PeopleConfig(n_persons=6, area=(15, 15)),
         rig=_rig("security"),
-        timing=TimingConfig(fps=(25.0, 30.0), max_offset_s=5.0, drift_sd=2e-5),
+        timing=TimingConfig(fps=(25.0, 30.0), fps_in_turn=True, max_offset_s=5.0, drift_sd=2e-5),
         detector=REALISTIC_DETECTOR),
     "sports": SceneConfig(
         description="Sports field 40x20 m: 6 cameras 8-15 m high on both long sides, "
@@ -83,7 +83,7 @@ PRESETS: dict[str, SceneConfig] = {
         duration_s=40,
         people=PeopleConfig(n_persons=12, area=(40, 20), speed_range=(1.0, 2.0)),
         rig=_rig("sports"),
-        timing=TimingConfig(fps=(50.0, 60.0), max_offset_s=3.0),
+        timing=TimingConfig(fps=(50.0, 60.0), fps_in_turn=True, max_offset_s=3.0),
         detector=REALISTIC_DETECTOR.model_copy(update={"min_height_px": 40})),
     "phones": SceneConfig(
         description="Phones on tripods: portrait and landscape, distortion, mixed 29.97/30/60 "
@@ -91,7 +91,8 @@ PRESETS: dict[str, SceneConfig] = {
         duration_s=60,
         people=PeopleConfig(n_persons=3, area=(6, 6)),
         rig=_rig("phones"),
-        timing=TimingConfig(fps=(STANDARD_FPS[1], 30.0, 60.0), max_offset_s=5.0,
+        timing=TimingConfig(fps=(30.0, 60.0, STANDARD_FPS[1]), fps_in_turn=True,
+                            max_offset_s=5.0,
                             drift_sd=5e-5, late_start_prob=0.3, early_stop_prob=0.3,
                             late_max_s=8.0),
         detector=REALISTIC_DETECTOR),

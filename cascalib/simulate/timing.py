@@ -33,6 +33,9 @@ class TimingConfig(BaseModel):
 
     fps: tuple[float, ...] = Field(
         (30.0,), description="Frame rates drawn from, per camera (e.g. STANDARD_FPS).")
+    fps_in_turn: bool = Field(
+        False, description="Give the cameras the rates of `fps` in turn (guaranteed mixed "
+        "rates) instead of drawing them at random.")
     max_offset_s: float = Field(
         3.0, ge=0, description="Start times are spread uniformly over this many seconds.")
     drift_sd: float = Field(
@@ -88,7 +91,8 @@ def make_clocks(cfg: TimingConfig, n_cameras: int, duration: float,
     """
     clocks = []
     for c in range(n_cameras):
-        fps = float(cfg.fps[int(rng.integers(len(cfg.fps)))])
+        pick = rng.integers(len(cfg.fps))
+        fps = float(cfg.fps[c % len(cfg.fps) if cfg.fps_in_turn else int(pick)])
         drift = 0.0 if c == 0 else float(rng.normal(0, cfg.drift_sd))
         start = rng.uniform(0, cfg.max_offset_s)
         end = duration - rng.uniform(0, cfg.max_offset_s)
