@@ -1,0 +1,360 @@
+"""Cross-view person association for stage V, without appearance and without identities.
+
+Three steps, each vectorised over frames where it can be:
+
+1. *Temporal alignment.* Camera frame ``k`` shows reference frame ``time_rate * k + time_offset``
+   (cascalib's TIME CONVENTION). The 2D tracks of every camera are interpolated to common reference
+   times: persons of consecutive frames are linked (track ids when the detector gives them, else a
+   Hungarian match of keypoint distances) and their keypoints blended linearly.
+2. *Association per reference time.* Each person's ground position is the back-projection of its
+   ankles onto the plane at ankle height (or of its hip at hip height). Cameras are added one at
+   a time and matched to the clusters so far with the Hungarian algorithm on ground distance;
+   unmatched persons start new clusters. Missing, extra (false positive) and partly visible
+   persons simply stay in small clusters, which are dropped below two views.
+3. *Consistency.* Every cluster is triangulated robustly; a view whose reprojection error is large
+   for its size in the image is removed (a wrong match or a false detection).
+
+Clusters of consecutive reference times are then linked into tracks by ground position, so bone
+lengths can be tied over time.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+from cascalib.camera import Camera
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.triangulation import triangulate
+
+__all__ = ["Association", "associate", "frame_links", "interpolate_views", "link_tracks"]
+
+log = logging.getLogger(__name__)
+
+_ANKLES = [CANONICAL_INDEX["left_ankle"], CANONICAL_INDEX["right_ankle"]]
+_HIP = CANONICAL_INDEX["mid_hip"]
+_LR_HIPS = [CANONICAL_INDEX["left_hip"], CANONICAL_INDEX["right_hip"]]
+#: Typical fraction of the body height at the hip joints (Winter, Biomechanics, 2009: 0.53).
+HIP_FRACTION = 0.53
+
+
+@dataclass(frozen=True)
+class Association:
+    """Persons matched across cameras at common reference times.
+
+    Attributes
+    ----------
+    times : ndarray, shape (G,)
+        Reference frame of each group (person at one time).
+    obs : ndarray, shape (G, C, 26, 3)
+        Canonical 2D keypoints (x, y, confidence) of the group in each camera, interpolated to the
+        reference time; NaN where the camera does not see the person.
+    tracks : ndarray of int, shape (G,)
+        Person track over reference times (-1 when not linked).
+    ground : ndarray, shape (G, 2)
+        Ground position (metres) from the cameras used for the association.
+    """
+
+    times: NDArray[np.float64]
+    obs: NDArray[np.float64]
+    tracks: NDArray[np.int64]
+    ground: NDArray[np.float64]
+
+    @property
+    def n_groups(self) -> int:
+        return int(self.times.shape[0])
+
+    def subset(self, index: NDArray[np.int64]) -> Association:
+        """The groups ``index`` only."""
+        return Association(self.times[index], self.obs[index], self.tracks[index],
+                           self.ground[index])
+
+
+# -- 1. temporal alignment -----------------------------------------------------------------------
+def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None,
+                *, gate: float = 0.5) -> NDArray[np.int64]:
+    """Which person slot of frame ``k + 1`` continues each slot of frame ``k``.
+
+    Parameters
+    ----------
+    keypoints : ndarray, shape (F, P, J, 3)
+    track_ids : ndarray, shape (F, P), optional
+        Per-camera track ids; used where both frames have them.
+    gate : float
+        Largest mean keypoint displacement between frames, as a fraction of the person's size.
+
+    Returns
+    -------
+    ndarray of int, shape (F, P)
+        ``links[k, p]`` is the slot in frame ``k + 1`` or -1 (the last row is all -1).
+    """
+    n_f, n_p = keypoints.shape[:2]
+    links = np.full((n_f, n_p), -1, dtype=np.int64)
+    if n_f < 2:
+        return links
+    a, b = keypoints[:-1, :, None, :, :2], keypoints[1:, None, :, :, :2]
+    with np.errstate(invalid="ignore"), _quiet():
+        d = np.nanmean(np.linalg.norm(a - b, axis=-1), axis=-1)  # (F-1, P, P)
+        ext = np.nanmax(keypoints[..., :2], axis=2) - np.nanmin(keypoints[..., :2], axis=2)
+        size = np.linalg.norm(ext, axis=-1)  # (F, P)
+    cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
+    for k in range(n_f - 1):
+        c = cost[k]
+        rows_ok = np.isfinite(c).any(1)
+        if not rows_ok.any():
+            continue
+        r, q = linear_sum_assignment(np.where(np.isfinite(c), c, 1e9))
+        good = c[r, q] < gate
+        links[k, r[good]] = q[good]
+    if track_ids is not None:
+        ta, tb = track_ids[:-1, :, None], track_ids[1:, None, :]
+        same = (ta == tb) & (ta >= 0)
+        has = same.any(-1)
+        links[:-1][has] = same.argmax(-1)[has]
+    return links
+
+
+class _quiet:
+    """Silence numpy's "mean of empty slice" warnings inside a block (all-NaN rows are expected)."""
+
+    def __enter__(self) -> None:
+        import warnings
+        self._cm = warnings.catch_warnings()
+        self._cm.__enter__()
+        warnings.simplefilter("ignore", RuntimeWarning)
+
+    def __exit__(self, *exc: object) -> None:
+        self._cm.__exit__(*exc)
+
+
+def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                      frames: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Keypoints of one camera at fractional frame positions.
+
+    Parameters
+    ----------
+    keypoints : ndarray, shape (F, P, J, 3)
+    links : ndarray, shape (F, P)
+        From :func:`frame_links`.
+    frames : ndarray, shape (T,)
+        Fractional frame indices of this camera.
+
+    Returns
+    -------
+    ndarray, shape (T, P, J, 3)
+        Person slots follow frame ``floor(frames)``; where the link or a joint of the next frame is
+        missing, the nearer frame's value is used if it is within half a frame, else NaN.
+    """
+    n_f, n_p = keypoints.shape[:2]
+    out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
+    inside = (frames > -0.5) & (frames < n_f - 0.5)
+    k0 = np.clip(np.floor(frames), 0, n_f - 1).astype(int)
+    w = np.clip(frames - k0, 0.0, 1.0)
+    k1 = np.minimum(k0 + 1, n_f - 1)
+    a = keypoints[k0]  # (T, P, J, 3)
+    nxt = links[k0]  # (T, P)
+    b = np.take_along_axis(keypoints[k1], np.maximum(nxt, 0)[:, :, None, None], axis=1)
+    b = np.where((nxt >= 0)[:, :, None, None], b, np.nan)
+    ww = w[:, None, None, None]
+    blend = (1 - ww) * a + ww * b
+    near_a = np.where(ww <= 0.5, a, np.nan)
+    near_b = np.where(ww >= 0.5, b, np.nan)
+    res = np.where(np.isfinite(blend), blend, np.where(np.isfinite(near_a), near_a, near_b))
+    out[inside] = res[inside]
+    return out
+
+
+# -- 2. association per time -----------------------------------------------------------------------
+def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: float,
+                     ankle_height: float) -> NDArray[np.float64]:
+    """Ground position of each person in each frame seen by one camera.
+
+    Parameters
+    ----------
+    views : ndarray, shape (T, P, 26, 3)
+
+    Returns
+    -------
+    ndarray, shape (T, P, 2)
+        NaN where neither ankles nor hips are visible or the ray misses the plane.
+    """
+    with _quiet():
+        ank = camera.backproject_to_plane(views[..., _ANKLES, :2], z=ankle_height)
+        g_ank = np.nanmean(ank[..., :2], axis=-2)
+        hip_uv = np.where(np.isfinite(views[..., _HIP, :2]), views[..., _HIP, :2],
+                          np.nanmean(views[..., _LR_HIPS, :2], axis=-2))
+        g_hip = camera.backproject_to_plane(hip_uv, z=HIP_FRACTION * height)[..., :2]
+    return np.where(np.isfinite(g_ank), g_ank, g_hip)
+
+
+def _cluster_time(grounds: list[NDArray[np.float64]], gate: float) -> NDArray[np.int64]:
+    """Cluster the persons of all cameras at one time.
+
+    Parameters
+    ----------
+    grounds : list of ndarray, shape (P_c, 2)
+        Ground positions per camera (NaN rows are ignored).
+
+    Returns
+    -------
+    ndarray of int, shape (n_clusters, C)
+        Person slot of each camera in each cluster, -1 where absent.
+    """
+    n_cams = len(grounds)
+    members: list[list[int]] = []
+    sums: list[NDArray[np.float64]] = []
+    counts: list[int] = []
+    for c, g in enumerate(grounds):
+        valid = np.flatnonzero(np.isfinite(g).all(1))
+        if valid.size == 0:
+            continue
+        matched = np.zeros(valid.size, dtype=bool)
+        if members:
+            centres = np.array(sums) / np.array(counts)[:, None]
+            cost = np.linalg.norm(g[valid, None] - centres[None], axis=-1)
+            r, q = linear_sum_assignment(cost)
+            for i, k in zip(r, q, strict=True):
+                if cost[i, k] < gate and members[k][c] < 0:
+                    members[k][c] = int(valid[i])
+                    sums[k] = sums[k] + g[valid[i]]
+                    counts[k] += 1
+                    matched[i] = True
+        for i in np.flatnonzero(~matched):
+            row = [-1] * n_cams
+            row[c] = int(valid[i])
+            members.append(row)
+            sums.append(g[valid[i]].copy())
+            counts.append(1)
+    if not members:
+        return np.zeros((0, n_cams), dtype=np.int64)
+    return np.array(members, dtype=np.int64)
+
+
+def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: NDArray[np.float64],
+              *, height: float, ankle_height: float, gate_m: float, consistency: float,
+              huber_px: float = 4.0) -> Association:
+    """Associate persons across cameras at every reference time.
+
+    Parameters
+    ----------
+    views : list of ndarray, shape (T, P_c, 26, 3)
+        Per camera, the canonical keypoints interpolated to the reference times.
+    cameras : list of Camera
+        Current cameras (same order).
+    times : ndarray, shape (T,)
+        Reference frames of the rows of ``views``.
+    height, ankle_height : float
+        Person height prior and ankle height (metres) for the ground positions.
+    gate_m : float
+        Largest ground distance (metres) between views of one person.
+    consistency : float
+        Largest median reprojection error of a view after triangulation, as a fraction of the
+        person's size in that image.
+
+    Returns
+    -------
+    Association
+        Groups seen by at least two cameras.
+    """
+    n_cams = len(cameras)
+    grounds = [ground_positions(cam, v, height=height, ankle_height=ankle_height)
+               for cam, v in zip(cameras, views, strict=True)]
+    t_idx, slots = [], []
+    for t in range(len(times)):
+        cl = _cluster_time([g[t] for g in grounds], gate_m)
+        cl = cl[(cl >= 0).sum(1) >= 2]
+        t_idx.append(np.full(len(cl), t))
+        slots.append(cl)
+    t_all = np.concatenate(t_idx) if t_idx else np.zeros(0, int)
+    s_all = np.concatenate(slots) if slots else np.zeros((0, n_cams), int)
+    obs = np.full((len(t_all), n_cams, 26, 3), np.nan)
+    ground = np.zeros((len(t_all), 2))
+    n_g = np.zeros(len(t_all))
+    for c in range(n_cams):
+        has = s_all[:, c] >= 0
+        obs[has, c] = views[c][t_all[has], s_all[has, c]]
+        g = grounds[c][t_all[has], s_all[has, c]]
+        ground[has] += g
+        n_g[has] += 1
+    ground /= np.maximum(n_g, 1)[:, None]
+    obs = check_consistency(obs, cameras, consistency, huber_px=huber_px)
+    keep = (np.isfinite(obs[..., 0]).any(-1).sum(1) >= 2)
+    log.info("associated %d person-frames over %d reference times (%d dropped as inconsistent)",
+             keep.sum(), len(times), (~keep).sum())
+    assoc = Association(times[t_all[keep]], obs[keep], np.full(keep.sum(), -1, dtype=np.int64),
+                        ground[keep])
+    return link_tracks(assoc)
+
+
+def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance: float,
+                      *, huber_px: float = 4.0) -> NDArray[np.float64]:
+    """Remove views whose keypoints disagree with the group's robust triangulation.
+
+    Parameters
+    ----------
+    obs : ndarray, shape (G, C, 26, 3)
+    tolerance : float
+        Largest median reprojection error as a fraction of the person's image size.
+
+    Returns
+    -------
+    ndarray, shape (G, C, 26, 3)
+        ``obs`` with inconsistent views set to NaN.
+    """
+    n_g, n_cams = obs.shape[:2]
+    if n_g == 0:
+        return obs
+    uv = obs[..., :2].transpose(1, 0, 2, 3).reshape(n_cams, -1, 2)
+    conf = obs[..., 2].transpose(1, 0, 2).reshape(n_cams, -1)
+    _, err = triangulate(cameras, uv, conf, huber_px=huber_px)
+    err = err.reshape(n_cams, n_g, 26).transpose(1, 0, 2)
+    with _quiet():
+        med = np.nanmedian(err, axis=-1)  # (G, C)
+        ext = np.nanmax(obs[..., :2], axis=2) - np.nanmin(obs[..., :2], axis=2)
+    size = np.maximum(np.linalg.norm(ext, axis=-1), 10.0)
+    bad = np.isfinite(obs[..., 0]).any(-1) & ~(med / size < tolerance)
+    # only judge groups that keep two views: with a 2-view group both views get the same error
+    out = obs.copy()
+    out[bad] = np.nan
+    return out
+
+
+# -- 3. tracks over time ---------------------------------------------------------------------------
+def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0) -> Association:
+    """Link groups of nearby reference times into person tracks by ground position.
+
+    Parameters
+    ----------
+    gate_m : float
+        Largest ground displacement (metres) between linked groups.
+    max_gap : float
+        Largest time gap (reference frames) bridged.
+    """
+    n = assoc.n_groups
+    tracks = np.full(n, -1, dtype=np.int64)
+    if n == 0:
+        return assoc
+    order = np.argsort(assoc.times, kind="stable")
+    uniq, starts = np.unique(assoc.times[order], return_index=True)
+    groups = np.split(order, starts[1:])
+    next_id = 0
+    last_pos: dict[int, tuple[float, NDArray[np.float64]]] = {}
+    for t, idx in zip(uniq, groups, strict=True):
+        live = [k for k, (tl, _) in last_pos.items() if t - tl <= max_gap]
+        if live:
+            prev = np.array([last_pos[k][1] for k in live])
+            cost = np.linalg.norm(assoc.ground[idx, None] - prev[None], axis=-1)
+            r, q = linear_sum_assignment(np.nan_to_num(cost, nan=1e9))
+            for i, k in zip(r, q, strict=True):
+                if cost[i, k] < gate_m:
+                    tracks[idx[i]] = live[k]
+        for i in idx:
+            if tracks[i] < 0:
+                tracks[i] = next_id
+                next_id += 1
+            last_pos[int(tracks[i])] = (float(t), assoc.ground[i])
+    return Association(assoc.times, assoc.obs, tracks, assoc.ground)

@@ -1,0 +1,401 @@
+"""Stage V: joint refinement of all cameras and the people's 3D joints.
+
+The paper (sec. "Joint Camera Refinement" and supplement "Bundle Adjustment - Details") minimises
+ray-to-ray distances with gradient descent. Here the same terms -- multi-view agreement, left/right
+symmetry, feet on the ground, the height prior -- form a nonlinear least-squares problem in a GTSAM
+factor graph (key table and factors in :mod:`cascalib.stages.refine_graph`), minimising the
+*reprojection* error with robust kernels and reporting marginal uncertainties.
+
+Cascade of one call to :func:`refine`::
+
+    tracks --interpolate to reference times--> views
+    views --associate (ground position, Hungarian, triangulation check)--> groups
+    groups --select (coverage of time, floor, image)--> graph --LM--> cameras
+    cameras --refine time offsets, re-associate--> (repeat n_rounds)
+    [final pass with principal point and distortion, kept if it helps on held-out frames]
+    cameras --triangulate every frame--> poses3d, quality report
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.calibration import Calibration
+from cascalib.camera import Camera
+from cascalib.errors import InputError, RefinementFailed
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.association import Association, associate, frame_links, interpolate_views
+from cascalib.stages.frame_selection import select_groups
+from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
+from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
+from cascalib.stages.refine_graph import (
+    GraphProblem,
+    SolveInfo,
+    build_graph,
+    initial_values,
+    marginal_sigmas,
+    optimize,
+    unpack,
+)
+from cascalib.stages.time_refine import refine_offsets
+from cascalib.stages.triangulation import triangulate
+from cascalib.tracks import Tracks
+
+__all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine"]
+
+log = logging.getLogger(__name__)
+
+#: Bone classes of the length terms: a left/right pair shares one target (symmetry).
+BONE_CLASSES: tuple[tuple[tuple[str, str], ...], ...] = (
+    (("left_shoulder", "left_elbow"), ("right_shoulder", "right_elbow")),
+    (("left_elbow", "left_wrist"), ("right_elbow", "right_wrist")),
+    (("left_hip", "left_knee"), ("right_hip", "right_knee")),
+    (("left_knee", "left_ankle"), ("right_knee", "right_ankle")),
+    (("left_ankle", "left_heel"), ("right_ankle", "right_heel")),
+    (("left_ankle", "left_big_toe"), ("right_ankle", "right_big_toe")),
+    (("neck", "left_shoulder"), ("neck", "right_shoulder")),
+    (("mid_hip", "left_hip"), ("mid_hip", "right_hip")),
+    (("neck", "mid_hip"),),
+    (("neck", "head_top"),),
+)
+
+
+@dataclass(frozen=True)
+class RefineResult:
+    """Outcome of stage V.
+
+    Attributes
+    ----------
+    calibration : Calibration
+        Refined cameras (same order as the input), ``quality`` filled per camera.
+    poses3d : ndarray, shape (T, P, 26, 3)
+        Triangulated canonical joints at reference frames ``times`` (NaN where unknown); slots are
+        ordered by person track.
+    times : ndarray, shape (T,)
+        Reference frames of ``poses3d``.
+    track_ids : ndarray of int, shape (T, P)
+        Person track of each slot of ``poses3d`` (-1 for empty slots).
+    quality : dict of str to CameraQuality
+        Per-camera report.
+    association : Association
+        The final cross-view association.
+    solves : list of SolveInfo
+        Error before/after and iterations of every solve.
+    distortion : bool
+        Whether the final cameras carry an estimated principal point and distortion.
+    n_selected : int
+        Person-frames in the last graph.
+    """
+
+    calibration: Calibration
+    poses3d: NDArray[np.float64]
+    times: NDArray[np.float64]
+    track_ids: NDArray[np.int64]
+    quality: dict[str, CameraQuality]
+    association: Association
+    solves: list[SolveInfo] = field(default_factory=list)
+    distortion: bool = False
+    n_selected: int = 0
+
+
+@dataclass
+class _Data:
+    """Per-camera inputs in calibration order."""
+
+    keypoints: list[NDArray[np.float64]]  # (F_c, P_c, 26, 3) canonical
+    links: list[NDArray[np.int64]]  # (F_c, P_c)
+    sizes: list[tuple[int, int]]
+    times: NDArray[np.float64]  # reference frames
+    reference: int
+
+
+def _prepare(tracks: list[Tracks], initial: Calibration) -> _Data:
+    by_name = {t.camera: t for t in tracks}
+    missing = [n for n in initial.names if n not in by_name]
+    if missing:
+        raise InputError(f"no tracks for camera(s) {missing} of the calibration",
+                         camera=missing[0], field="tracks")
+    if len(initial) < 2:
+        raise InputError("refinement needs at least two cameras", field="cameras")
+    ordered = [by_name[n] for n in initial.names]
+    kps = [t.canonical() for t in ordered]
+    links = [frame_links(k, t.track_ids) for k, t in zip(kps, ordered, strict=True)]
+    sizes = [t.image_size or cam.image_size for t, cam in zip(ordered, initial.cameras,
+                                                                 strict=True)]
+    ref = initial.names.index(initial.reference_camera)
+    times = np.arange(kps[ref].shape[0], dtype=np.float64)
+    return _Data(kps, links, sizes, times, ref)
+
+
+def _views(data: _Data, cameras: list[Camera]) -> list[NDArray[np.float64]]:
+    return [interpolate_views(k, lk, (data.times - cam.time_offset) / cam.time_rate)
+            for k, lk, cam in zip(data.keypoints, data.links, cameras, strict=True)]
+
+
+def triangulate_groups(assoc: Association, cameras: list[Camera], joints: NDArray[np.int64],
+                       *, huber_px: float = 4.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Robust triangulation of the joints ``joints`` of every group.
+
+    Returns
+    -------
+    points : ndarray, shape (G, J, 3)
+    errors : ndarray, shape (G, C, J)
+        Reprojection errors (px), NaN where unobserved.
+    """
+    obs = assoc.obs[:, :, joints]
+    n_g, n_c, n_j = obs.shape[:3]
+    uv = obs[..., :2].transpose(1, 0, 2, 3).reshape(n_c, -1, 2)
+    conf = obs[..., 2].transpose(1, 0, 2).reshape(n_c, -1)
+    X, err = triangulate(cameras, uv, conf, huber_px=huber_px)
+    return X.reshape(n_g, n_j, 3), err.reshape(n_c, n_g, n_j).transpose(1, 0, 2)
+
+
+def _bones(names: tuple[str, ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Bone joint pairs (indices into ``names``) and their class, for bones fully in ``names``."""
+    pos = {n: i for i, n in enumerate(names)}
+    pairs, cls = [], []
+    for k, bone_class in enumerate(BONE_CLASSES):
+        for a, b in bone_class:
+            if a in pos and b in pos:
+                pairs.append((pos[a], pos[b]))
+                cls.append(k)
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2), np.array(cls, dtype=np.int64)
+
+
+def bone_targets(points: NDArray[np.float64], tracks: NDArray[np.int64], bones: NDArray[np.int64],
+                 classes: NDArray[np.int64], *, min_samples: int = 3) -> dict[int, NDArray]:
+    """Per-track median length of each bone class (left and right pooled).
+
+    Parameters
+    ----------
+    points : ndarray, shape (G, J, 3)
+    tracks : ndarray of int, shape (G,)
+    bones, classes : ndarray, shape (B, 2) and (B,)
+
+    Returns
+    -------
+    dict of int to ndarray, shape (n_classes,)
+        Median per class (NaN with fewer than ``min_samples`` lengths) for each track.
+    """
+    lengths = np.linalg.norm(points[:, bones[:, 0]] - points[:, bones[:, 1]], axis=-1)  # (G, B)
+    n_cls = int(classes.max()) + 1 if classes.size else 0
+    out: dict[int, NDArray] = {}
+    for tr in np.unique(tracks[tracks >= 0]):
+        rows = lengths[tracks == tr]
+        med = np.full(n_cls, np.nan)
+        for k in range(n_cls):
+            v = rows[:, classes == k].ravel()
+            v = v[np.isfinite(v)]
+            if v.size >= min_samples:
+                med[k] = np.median(v)
+        out[int(tr)] = med
+    return out
+
+
+def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: RefineConfig
+                   ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Stance ankles and head tops of upright persons, both (S, J) masks."""
+    s, j = points.shape[:2]
+    stance = np.zeros((s, j), dtype=bool)
+    head = np.zeros((s, j), dtype=bool)
+    if "left_ankle" not in names or "right_ankle" not in names:
+        return stance, head
+    ia, ib = names.index("left_ankle"), names.index("right_ankle")
+    z = points[:, [ia, ib], 2]
+    with np.errstate(invalid="ignore"):
+        low = np.nanmin(np.where(np.isfinite(z), z, np.inf), axis=1)
+        both = np.isfinite(z).all(1)
+        stance[:, [ia, ib]] = both[:, None] & (z - low[:, None] < cfg.stance_tolerance_m)
+    if "head_top" in names:
+        ih = names.index("head_top")
+        rise = points[:, ih, 2] - low
+        ok = np.isfinite(rise) & both
+        if ok.any():
+            head[:, ih] = ok & (rise > 0.85 * np.median(rise[ok]))
+    return stance, head
+
+
+def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *,
+                  height: float, n_persons: int, reference: int, model: str = "f",
+                  targets: dict[int, NDArray] | None = None) -> GraphProblem:
+    names = tuple(cfg.joints)
+    joints = np.array([CANONICAL_INDEX[n] for n in names])
+    points, err = triangulate_groups(assoc, cameras, joints)
+    e = err[np.isfinite(err)]
+    # median of a 2D error norm is 1.18 sigma (chi, 2 dof)
+    sigma = max(cfg.sigma_px, float(np.median(e)) / 1.18 if e.size else 0.0)
+    stance, head = _foot_and_head(points, names, cfg)
+    bones, classes = _bones(names)
+    lengths = np.full((assoc.n_groups, len(bones)), np.nan)
+    if targets and cfg.use_bones:
+        for s, tr in enumerate(assoc.tracks):
+            if int(tr) in targets:
+                lengths[s] = targets[int(tr)][classes]
+    return GraphProblem(cameras, assoc.obs[:, :, joints], names, points, stance, head, bones,
+                        lengths, reference, model, height, n_persons,  # type: ignore[arg-type]
+                        sigma)
+
+
+def _solve(prob: GraphProblem, cfg: RefineConfig):  # noqa: ANN202 - internal
+    graph = build_graph(prob, cfg)
+    values, info = optimize(graph, initial_values(prob), cfg)
+    cameras, points = unpack(values, prob)
+    return cameras, points, info, graph, values
+
+
+def _persons_per_time(assoc: Association) -> int:
+    if assoc.n_groups == 0:
+        return 0
+    _, counts = np.unique(assoc.times, return_counts=True)
+    return int(counts.max())
+
+
+def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Camera],
+                   joints: NDArray[np.int64]) -> float:
+    _, err = triangulate_groups(assoc.subset(idx), cameras, joints)
+    e = err[np.isfinite(err)]
+    return float(np.median(e)) if e.size else float("inf")
+
+
+def _distortion_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
+                     cfg: RefineConfig, kw: dict, rng: np.random.Generator):  # noqa: ANN202
+    """Free principal point and distortion (with priors); keep only if held-out error drops."""
+    prob = _make_problem(assoc.subset(sel), cameras, cfg, model="ds2", **kw)
+    try:
+        cams2, _, info, graph, values = _solve(prob, cfg)
+    except RefinementFailed as exc:
+        log.warning("distortion pass failed, keeping the pinhole cameras: %s", exc)
+        return None
+    if cfg.distortion == "always":
+        return cams2, info, graph, values, prob
+    rest = np.setdiff1d(np.arange(assoc.n_groups), sel)
+    if rest.size == 0:
+        return None
+    held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    e1 = _heldout_error(assoc, held, cameras, joints)
+    e2 = _heldout_error(assoc, held, cams2, joints)
+    gain = 1 - e2 / e1 if e1 > 0 else 0.0
+    log.info("distortion pass: held-out median reprojection %.2f -> %.2f px (gain %.0f %%)",
+             e1, e2, 100 * gain)
+    if gain < cfg.distortion_min_gain:
+        return None
+    return cams2, info, graph, values, prob
+
+
+def _poses3d(assoc: Association, points: NDArray[np.float64], times: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Scatter group joints (G, 26, 3) into (T, P, 26, 3) slots ordered by track."""
+    n_p = max(_persons_per_time(assoc), 1)
+    poses = np.full((len(times), n_p, 26, 3), np.nan)
+    ids = np.full((len(times), n_p), -1, dtype=np.int64)
+    row = np.searchsorted(times, assoc.times)
+    order = np.lexsort((assoc.tracks, row))
+    slot = np.zeros(assoc.n_groups, dtype=np.int64)
+    r_sorted = row[order]
+    first = np.searchsorted(r_sorted, r_sorted, side="left")
+    slot[order] = np.arange(len(order)) - first
+    poses[row, slot] = points
+    ids[row, slot] = assoc.tracks
+    return poses, ids
+
+
+def _report(assoc: Association, cameras: list[Camera], sigmas: list[dict[str, float]],
+            cfg: RefineConfig) -> tuple[NDArray[np.float64], dict[str, CameraQuality]]:
+    """Final triangulation of every group and the per-camera quality."""
+    points, err = triangulate_groups(assoc, cameras, np.arange(26))
+    conf = assoc.obs[..., 2]
+    sig = cfg.sigma_px / np.sqrt(np.clip(np.nan_to_num(conf), cfg.min_confidence, 1.0))
+    used = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    e_used, s_used = err[:, :, used], sig[:, :, used]
+    inl = np.isfinite(e_used) & (e_used < cfg.inlier_px)
+    s0 = unit_weight_sigma(e_used[inl], s_used[inl])
+    scale = (s0 if np.isfinite(s0) else 1.0) * cfg.uncertainty_inflation
+    quality = {cam.name: assess_camera(cam, e_used[:, c].ravel(), sigmas[c], scale, cfg)
+               for c, cam in enumerate(cameras)}
+    for q in quality.values():
+        log.info("camera %s: %s (%s)", q.camera, q.verdict, q.reason)
+    return points, quality
+
+
+def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
+           height: float = 1.70, rng: np.random.Generator | int | None = None) -> RefineResult:
+    """Refine all cameras (intrinsics, extrinsics, time offsets) and triangulate every frame.
+
+    Parameters
+    ----------
+    tracks : list of Tracks
+        One per camera of ``initial`` (matched by name), 2D detections.
+    initial : Calibration
+        Cameras from stages I-IV in one world frame (z up, ground z = 0, metres) with time offsets
+        and rates per cascalib's TIME CONVENTION.
+    config : RefineConfig, optional
+    height : float
+        Mean person height (m): the metric scale.
+    rng : Generator or seed, optional
+        For the subsets of the time and distortion checks.
+
+    Returns
+    -------
+    RefineResult
+
+    Raises
+    ------
+    InputError
+        If a camera of ``initial`` has no tracks.
+    RefinementFailed
+        If too few people are seen by two cameras or the solve fails.
+    """
+    cfg = config or RefineConfig()
+    rng = np.random.default_rng(rng)
+    data = _prepare(tracks, initial)
+    cameras = list(initial.cameras)
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    solves: list[SolveInfo] = []
+    targets: dict[int, NDArray] | None = None
+    for r in range(cfg.n_rounds):
+        refined = r > 0
+        assoc = associate(_views(data, cameras), cameras, data.times, height=height,
+                          ankle_height=cfg.ankle_height,
+                          gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
+                          consistency=cfg.consistency_refined if refined else cfg.consistency)
+        if assoc.n_groups < 5:
+            raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
+                                   " at the same time: check the time offsets and overlap")
+        sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
+                            floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+        kw = dict(height=height, n_persons=_persons_per_time(assoc), reference=data.reference,
+                  targets=targets)
+        prob = _make_problem(assoc.subset(sel), cameras, cfg, **kw)
+        cameras, _, info, graph, values = _solve(prob, cfg)
+        solves.append(info)
+        if cfg.use_bones:
+            # targets from this round's cameras, whose scale the height prior has already set
+            pts, _ = triangulate_groups(assoc, cameras, joints)
+            targets = bone_targets(pts, assoc.tracks, *_bones(tuple(cfg.joints)))
+        if cfg.refine_time and r < cfg.n_rounds - 1:
+            cameras = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
+                                     joints, search=cfg.time_search_frames,
+                                     step=cfg.time_step_frames, rng=rng)
+    distortion = False
+    if cfg.distortion != "never":
+        res = _distortion_pass(assoc, sel, cameras, cfg, kw | {"targets": targets}, rng)
+        if res is not None:
+            cameras, info, graph, values, prob = res
+            solves.append(info)
+            distortion = True
+    sigmas = marginal_sigmas(graph, values, prob)
+    final = associate(_views(data, cameras), cameras, data.times, height=height,
+                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
+                      consistency=cfg.consistency_refined)
+    points, quality = _report(final, cameras, sigmas, cfg)
+    poses, ids = _poses3d(final, points, data.times)
+    calib = Calibration(cameras, reference_camera=initial.reference_camera,
+                        quality={n: q.to_dict() for n, q in quality.items()},
+                        world=initial.world)
+    return RefineResult(calib, poses, data.times, ids, quality, final, solves, distortion,
+                        len(sel))

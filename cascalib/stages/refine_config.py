@@ -1,0 +1,128 @@
+"""Configuration of stage V, the joint camera refinement (bundle adjustment)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["DEFAULT_JOINTS", "RefineConfig"]
+
+#: Joints used in the bundle adjustment. The paper (sec. "Joint Camera Refinement") leaves out head
+#: and arm keypoints because of their motion and self-occlusion; with per-keypoint robust kernels
+#: and confidence weights we keep arms and head top (the head top carries the height prior) and
+#: only drop eyes and ears, whose tiny baseline makes them nearly useless and which swap sides.
+DEFAULT_JOINTS: tuple[str, ...] = (
+    "nose", "head_top", "neck", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
+    "left_wrist", "right_wrist", "mid_hip", "left_hip", "right_hip", "left_knee", "right_knee",
+    "left_ankle", "right_ankle", "left_heel", "right_heel", "left_big_toe", "right_big_toe",
+)  # fmt: skip
+
+
+class RefineConfig(BaseModel):
+    """Stage V settings. Units: pixels (px), metres (m), reference frames, degrees (deg)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    # -- problem size ----------------------------------------------------------------------------
+    joints: tuple[str, ...] = Field(
+        DEFAULT_JOINTS, description="Canonical joints in the graph. The paper uses ankles to "
+        "shoulders only (Joint Camera Refinement); see DEFAULT_JOINTS for why we keep more.")
+    max_groups: int = Field(
+        240, ge=10, description="Person-frames selected for the graph (frame selection budget). "
+        "The paper keeps the top-k most confident poses; the time of the solve grows with this, "
+        "not with the sequence length.")
+    n_rounds: int = Field(
+        3, ge=1, description="Solve / re-associate rounds (outlier rejection by re-association).")
+    max_iterations: int = Field(60, ge=1, description="Levenberg-Marquardt iterations per solve.")
+    schur: bool = Field(
+        True, description="Use gtsam's SfmLevenbergMarquardtOptimizer (Schur complement on "
+        "the 3D points), measured 25-28 % faster than plain LM from 500 frames.")
+
+    # -- measurement model -------------------------------------------------------------------------
+    sigma_px: float = Field(
+        2.0, gt=0, description="Keypoint noise (px) at confidence 1; scaled by 1/sqrt(conf).")
+    min_confidence: float = Field(0.1, ge=0, le=1, description="Keypoints below are ignored.")
+    robust: Literal["huber", "cauchy"] = Field(
+        "huber", description="Robust kernel of the reprojection factors (the paper uses none).")
+    robust_k: float = Field(
+        1.345, gt=0, description="Kernel threshold in standard deviations (Huber's 95 % value).")
+
+    # -- body priors -------------------------------------------------------------------------------
+    height_sd: float = Field(
+        0.07, gt=0, description="Population sd of adult height (m); the paper assumes one "
+        "height of 1.70 m (supplement, height error L_h).")
+    head_top_fraction: float = Field(
+        1.0, gt=0.8, le=1.1, description="Height of the head_top keypoint as a fraction of "
+        "the body height when standing.")
+    ankle_height: float = Field(
+        0.08, ge=0, le=0.2, description="Height of the ankle joint above the floor (m) when "
+        "the foot is in stance (paper supplement, L_p, uses 0).")
+    ground_sigma_m: float = Field(0.03, gt=0, description="Stance-ankle height noise (m).")
+    stance_tolerance_m: float = Field(
+        0.05, gt=0, description="A foot is in stance when its ankle is at most this much higher "
+        "than the other ankle (m).")
+    use_bones: bool = Field(
+        True, description="Left/right symmetry and constant bone length over each track, as "
+        "RangeFactor3 terms to per-track medians of the previous round (paper: L_left,right).")
+    bone_sigma_m: float = Field(0.015, gt=0, description="Bone-length noise (m).")
+
+    # -- gauge -------------------------------------------------------------------------------------
+    gauge_yaw_sigma_deg: float = Field(
+        0.01, gt=0, description="Prior on the reference camera's yaw (fixes the world yaw).")
+    gauge_xy_sigma_m: float = Field(
+        0.001, gt=0, description="Prior on the reference camera's x, y (fixes the world origin).")
+    gauge_tilt_sigma_deg: float = Field(
+        10.0, gt=0, description="Loose prior on the reference camera's tilt and roll.")
+    gauge_z_sigma_m: float = Field(1.0, gt=0, description="Loose prior on its height (m).")
+
+    # -- association -------------------------------------------------------------------------------
+    gate_m: float = Field(
+        1.5, gt=0, description="Ground distance gate (m) of the first association, sized for "
+        "the errors stages II-IV leave (~3 deg, ~0.3 m).")
+    gate_refined_m: float = Field(0.6, gt=0, description="Gate after the first solve (m).")
+    consistency: float = Field(
+        0.3, gt=0, description="First-round gate of a view's median reprojection error after "
+        "triangulation, as a fraction of the person's size in the image.")
+    consistency_refined: float = Field(0.08, gt=0, description="The same gate after a solve.")
+    n_time_bins: int = Field(60, ge=1, description="Time bins of the frame selection.")
+    floor_cell_m: float = Field(1.0, gt=0, description="Floor cell of the frame selection (m).")
+    image_grid: int = Field(4, ge=1, description="Image grid (n x n) of the frame selection.")
+
+    # -- time --------------------------------------------------------------------------------------
+    refine_time: bool = Field(
+        True, description="Refine each camera's time offset to sub-frame accuracy between "
+        "rounds by interpolating its 2D tracks (the rate from stage III is kept).")
+    time_search_frames: float = Field(
+        1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
+    time_step_frames: float = Field(0.05, gt=0, description="Grid step of that search.")
+
+    # -- intrinsics --------------------------------------------------------------------------------
+    distortion: Literal["auto", "never", "always"] = Field(
+        "auto", description="Final pass with principal point and k1, k2, p1, p2 free (Cal3DS2): "
+        "'auto' keeps it only if it lowers the held-out reprojection error measurably.")
+    distortion_min_gain: float = Field(
+        0.05, ge=0, description="Relative drop of the held-out median reprojection error that "
+        "'auto' requires to keep the distortion model.")
+    principal_point_sigma_px: float = Field(
+        15.0, gt=0, description="Prior sd of the principal point around the image centre.")
+    distortion_sigma: float = Field(0.3, gt=0, description="Prior sd of k1 and k2.")
+    tangential_sigma: float = Field(0.01, gt=0, description="Prior sd of p1 and p2.")
+
+    # -- quality -----------------------------------------------------------------------------------
+    inlier_px: float = Field(
+        8.0, gt=0, description="Reprojection error (px) below which an observation is an inlier.")
+    accept_median_px: float = Field(
+        4.0, gt=0, description="Largest median reprojection error of an accepted camera.")
+    fail_median_px: float = Field(
+        15.0, gt=0, description="Median reprojection error above which a camera failed.")
+    min_inlier_rate: float = Field(0.6, ge=0, le=1, description="Below: suspicious.")
+    fail_inlier_rate: float = Field(0.3, ge=0, le=1, description="Below: failed.")
+    min_observations: int = Field(50, ge=0, description="Fewer observations: failed.")
+    max_sigma_rotation_deg: float = Field(0.5, gt=0, description="Above: suspicious.")
+    max_sigma_position_m: float = Field(0.15, gt=0, description="Above: suspicious.")
+    max_sigma_focal_rel: float = Field(0.03, gt=0, description="Above: suspicious.")
+    uncertainty_inflation: float = Field(
+        3.0, gt=0, description="Factor on the marginal sigmas (after the a-posteriori variance "
+        "factor): marginals reflect noise, not model bias (detector bias, body-model error); "
+        "calibrated against the measured errors of bench/bench_refine.py.")

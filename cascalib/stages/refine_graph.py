@@ -1,0 +1,344 @@
+"""The stage V factor graph: build, initial values, optimise, unpack.
+
+Key table (``gtsam.symbol_shorthand``):
+
+======  =====================================================  =================================
+Key     Variable                                               Type
+======  =====================================================  =================================
+X(c)    pose of camera c, *world_from_camera* (gtsam's Pose3)    ``gtsam.Pose3``
+K(c)    intrinsics of camera c: one focal with the principal     ``gtsam.Cal3f`` or ``Cal3DS2``
+        point fixed, or fx, fy, s, principal point, k1, k2,
+        p1, p2 in the final distortion pass
+P(k)    3D joint k = s * J + j: joint j of selected group s      ``gtsam.Point3`` (world, metres)
+======  =====================================================  =================================
+
+Factors, all built into gtsam (Python ``CustomFactor`` callbacks copy the whole ``Values`` on each
+call inside gtsam's optimisers, which grows with the square of the problem):
+
+* ``GeneralSFMFactor2Cal3f`` / ``...Cal3DS2``: reprojection of every keypoint, sigma
+  ``sigma_px / sqrt(confidence)`` (px), in a Huber or Cauchy kernel;
+* ``PriorFactorPoint3`` on a stance ankle, precision on z only: the feet stand on the ground
+  plane (z = ankle height) -- fixes the world's z, roll and pitch;
+* ``PriorFactorPoint3`` on the head top of upright persons, precision on z only: the height prior
+  -- fixes the metric scale (the average over persons, sd ``height_sd / sqrt(n_persons)``);
+* ``RangeFactor3`` on bones: constant bone length over a track and left/right symmetry, both to the
+  per-track median of the previous round;
+* ``PriorFactorPose3`` on the reference camera with a full covariance that is tight on its yaw and
+  x, y in the *world* frame and loose on tilt and height: fixes the world's yaw and origin.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Literal
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import K, P, X
+from numpy.typing import NDArray
+
+from cascalib.camera import Camera
+from cascalib.errors import RefinementFailed
+from cascalib.stages.refine_config import RefineConfig
+
+__all__ = ["GraphProblem", "build_graph", "initial_values", "optimize", "unpack"]
+
+log = logging.getLogger(__name__)
+
+_LOOSE = 1e3  # sd (m) of the unconstrained axes of the z-only priors: precision 1e-6
+
+
+@dataclass
+class GraphProblem:
+    """Everything the graph is built from.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        Initial cameras (C).
+    obs : ndarray, shape (S, C, J, 3)
+        Keypoints (x, y, confidence) of the selected groups, for the joints ``joint_names``.
+    joint_names : tuple of str, length J
+    points0 : ndarray, shape (S, J, 3)
+        Initial 3D joints; NaN joints are not variables.
+    stance : ndarray of bool, shape (S, J)
+        Joints (ankles) that stand on the ground.
+    head : ndarray of bool, shape (S, J)
+        Joints (head tops of upright persons) that carry the height prior.
+    bones : ndarray of int, shape (B, 2)
+        Joint index pairs (into J) of the bone-length terms.
+    bone_lengths : ndarray, shape (S, B)
+        Target length of each bone of each group (m), NaN for none.
+    reference : int
+        Index of the reference camera (gauge).
+    model : {"f", "ds2"}
+        Calibration model: ``Cal3f`` (one focal) or ``Cal3DS2`` (with distortion).
+    height : float
+        Height prior (m).
+    n_persons : int
+        Number of distinct persons (the height prior's weight is shared between their groups).
+    sigma_px : float
+        Keypoint noise (px) at confidence 1 for this solve: from a poor start it is raised to the
+        spread of the initial residuals so they stay in the kernel's quadratic zone (graduated
+        robustness; a Huber kernel far beyond its knee has no curvature to pull cameras back).
+    """
+
+    cameras: list[Camera]
+    obs: NDArray[np.float64]
+    joint_names: tuple[str, ...]
+    points0: NDArray[np.float64]
+    stance: NDArray[np.bool_]
+    head: NDArray[np.bool_]
+    bones: NDArray[np.int64]
+    bone_lengths: NDArray[np.float64]
+    reference: int
+    model: Literal["f", "ds2"]
+    height: float
+    n_persons: int
+    sigma_px: float
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    def point_keys(self) -> NDArray[np.int64]:
+        """(S, J) index k of P(k), -1 where the joint is not a variable."""
+        s, j = self.points0.shape[:2]
+        idx = np.arange(s * j, dtype=np.int64).reshape(s, j)
+        return np.where(np.isfinite(self.points0).all(-1), idx, -1)
+
+
+def _robust(kernel: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+    est = (gtsam.noiseModel.mEstimator.Huber.Create(k) if kernel == "huber"
+           else gtsam.noiseModel.mEstimator.Cauchy.Create(k))
+    return gtsam.noiseModel.Robust.Create(est, base)
+
+
+def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
+                      cfg: RefineConfig) -> int:
+    """Reprojection factors; the noise models are shared per confidence level (1/20 steps)."""
+    factor = (gtsam.GeneralSFMFactor2Cal3f if prob.model == "f"
+              else gtsam.GeneralSFMFactor2Cal3DS2)
+    keys = prob.point_keys()
+    conf = prob.obs[..., 2]
+    ok = (keys[:, None, :] >= 0) & np.isfinite(prob.obs[..., 0]) & (conf >= cfg.min_confidence)
+    level = np.clip(np.round(np.nan_to_num(conf) * 20), 1, 20).astype(int)
+    models = {lv: _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
+        2, prob.sigma_px / np.sqrt(lv / 20.0))) for lv in range(1, 21)}
+    s_i, c_i, j_i = np.nonzero(ok)
+    for s, c, j in zip(s_i.tolist(), c_i.tolist(), j_i.tolist(), strict=True):
+        graph.add(factor(prob.obs[s, c, j, :2], models[level[s, c, j]], X(c),
+                         P(int(keys[s, j])), K(c)))
+    return len(s_i)
+
+
+def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
+                     cfg: RefineConfig) -> tuple[int, int, int]:
+    """Ground (stance ankles), height (head tops) and bone-length factors."""
+    keys = prob.point_keys()
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.robust_k)
+    ground = gtsam.noiseModel.Robust.Create(
+        huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([_LOOSE, _LOOSE, cfg.ground_sigma_m])))
+    n_ground = 0
+    for s, j in zip(*np.nonzero(prob.stance & (keys >= 0)), strict=True):
+        graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])),
+                                          np.array([0.0, 0.0, cfg.ankle_height]), ground))
+        n_ground += 1
+    heads = np.nonzero(prob.head & (keys >= 0))
+    n_head = len(heads[0])
+    if n_head:
+        # n_head factors of sd sigma_h average to the sd of the mean height of n_persons people
+        sigma_h = cfg.height_sd * np.sqrt(n_head / max(prob.n_persons, 1))
+        head = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([_LOOSE, _LOOSE, sigma_h])))
+        target = np.array([0.0, 0.0, cfg.head_top_fraction * prob.height])
+        for s, j in zip(*heads, strict=True):
+            graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])), target, head))
+    bone = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(
+        1, cfg.bone_sigma_m))
+    n_bone = 0
+    for s, b in zip(*np.nonzero(np.isfinite(prob.bone_lengths)), strict=True):
+        ka, kb = keys[s, prob.bones[b, 0]], keys[s, prob.bones[b, 1]]
+        if ka >= 0 and kb >= 0:
+            graph.add(gtsam.RangeFactor3(P(int(ka)), P(int(kb)),
+                                         float(prob.bone_lengths[s, b]), bone))
+            n_bone += 1
+    return n_ground, n_head, n_bone
+
+
+def _gauge_noise(cam: Camera, cfg: RefineConfig) -> gtsam.noiseModel.Base:
+    """Pose prior noise: tight on world yaw and x, y, loose on tilt and z.
+
+    gtsam perturbs a Pose3 in its body frame: a body rotation delta is the world rotation
+    ``R_wc @ delta`` and a body translation delta moves the centre by ``R_wc @ delta``, so a
+    world-frame information matrix ``L`` becomes ``R_wc.T @ L @ R_wc`` in the body frame.
+    """
+    R_wc = cam.R.T
+    tilt = np.radians(cfg.gauge_tilt_sigma_deg)
+    cov_rot_w = np.diag([tilt**2, tilt**2, np.radians(cfg.gauge_yaw_sigma_deg) ** 2])
+    cov_pos_w = np.diag([cfg.gauge_xy_sigma_m**2, cfg.gauge_xy_sigma_m**2,
+                         cfg.gauge_z_sigma_m**2])
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = R_wc.T @ cov_rot_w @ R_wc
+    cov[3:, 3:] = R_wc.T @ cov_pos_w @ R_wc
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+def _calibration(cam: Camera, model: str) -> gtsam.Cal3f | gtsam.Cal3DS2:
+    if model == "f":
+        return gtsam.Cal3f(cam.focal, cam.K[0, 2], cam.K[1, 2])
+    k1, k2, p1, p2, _ = cam.dist
+    return gtsam.Cal3DS2(cam.fx, cam.fy, cam.K[0, 1], cam.K[0, 2], cam.K[1, 2], k1, k2, p1, p2)
+
+
+def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
+                          cfg: RefineConfig) -> None:
+    """Loose focal prior (30 %); in the distortion pass, priors on principal point and lens."""
+    for c, cam in enumerate(prob.cameras):
+        if prob.model == "f":
+            graph.addPriorCal3f(K(c), _calibration(cam, "f"),
+                                gtsam.noiseModel.Isotropic.Sigma(1, 0.3 * cam.focal))
+            continue
+        w, h = cam.image_size
+        centred = cam.with_(K=np.array([[cam.fx, 0, (w - 1) / 2], [0, cam.fy, (h - 1) / 2],
+                                        [0, 0, 1]]), dist=np.zeros(5))
+        sig = np.array([0.3 * cam.focal, 0.3 * cam.focal, 1e-3, cfg.principal_point_sigma_px,
+                        cfg.principal_point_sigma_px, cfg.distortion_sigma, cfg.distortion_sigma,
+                        cfg.tangential_sigma, cfg.tangential_sigma])
+        graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(centred, "ds2"),
+                                           gtsam.noiseModel.Diagonal.Sigmas(sig)))
+
+
+def build_graph(prob: GraphProblem, cfg: RefineConfig) -> gtsam.NonlinearFactorGraph:
+    """The factor graph of one solve (see the module docstring for the terms)."""
+    graph = gtsam.NonlinearFactorGraph()
+    n_rep = _add_reprojection(graph, prob, cfg)
+    n_ground, n_head, n_bone = _add_body_priors(graph, prob, cfg)
+    ref = prob.cameras[prob.reference]
+    graph.add(gtsam.PriorFactorPose3(X(prob.reference), _pose(ref), _gauge_noise(ref, cfg)))
+    _add_intrinsic_priors(graph, prob, cfg)
+    log.debug("graph: %d reprojection, %d ground, %d height, %d bone factors",
+              n_rep, n_ground, n_head, n_bone)
+    if n_ground == 0 or n_head == 0:
+        raise RefinementFailed("no stance feet or no upright person among the selected frames: "
+                               "the ground plane and the scale are not observable")
+    return graph
+
+
+def _pose(cam: Camera) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(cam.R.T), cam.center)
+
+
+def initial_values(prob: GraphProblem) -> gtsam.Values:
+    """Cameras and 3D joints of ``prob`` as gtsam Values."""
+    values = gtsam.Values()
+    for c, cam in enumerate(prob.cameras):
+        values.insert(X(c), _pose(cam))
+        values.insert(K(c), _calibration(cam, prob.model))
+    keys = prob.point_keys()
+    for s, j in zip(*np.nonzero(keys >= 0), strict=True):
+        values.insert(P(int(keys[s, j])), prob.points0[s, j])
+    return values
+
+
+@dataclass(frozen=True)
+class SolveInfo:
+    """Outcome of one solve."""
+
+    error_before: float
+    error_after: float
+    iterations: int
+    n_factors: int
+
+
+def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig
+             ) -> tuple[gtsam.Values, SolveInfo]:
+    """Levenberg-Marquardt (with Schur elimination of the points when configured).
+
+    Raises
+    ------
+    RefinementFailed
+        If gtsam fails (indeterminate system, NaN) or the error does not decrease.
+    """
+    before = graph.error(values)
+    try:
+        if cfg.schur:
+            params = gtsam.SfmLevenbergMarquardtParams()
+            params.setEliminationMode(gtsam.SfmEliminationMode.Schur)
+            params.setMaxIterations(cfg.max_iterations)
+            params.setRelativeErrorTol(1e-6)
+            opt = gtsam.SfmLevenbergMarquardtOptimizer(graph, values, params)
+        else:
+            params = gtsam.LevenbergMarquardtParams()
+            params.setMaxIterations(cfg.max_iterations)
+            params.setRelativeErrorTol(1e-6)
+            opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        result = opt.optimize()
+        iterations = opt.iterations()
+    except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and friends
+        raise RefinementFailed(f"bundle adjustment failed: {exc}") from exc
+    after = graph.error(result)
+    if not np.isfinite(after) or after > before * (1 + 1e-9):
+        raise RefinementFailed(f"bundle adjustment diverged (error {before:.4g} -> {after:.4g})")
+    log.info("bundle adjustment: error %.4g -> %.4g in %d iterations (%d factors)", before,
+             after, iterations, graph.size())
+    return result, SolveInfo(before, after, iterations, graph.size())
+
+
+def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDArray[np.float64]]:
+    """Cameras and 3D joints from optimised values.
+
+    Returns
+    -------
+    cameras : list of Camera
+        With the refined pose and intrinsics (distortion only in the ``ds2`` model).
+    points : ndarray, shape (S, J, 3)
+        NaN where the joint was not a variable.
+    """
+    cams = []
+    for c, cam in enumerate(prob.cameras):
+        pose = values.atPose3(X(c))
+        R = pose.rotation().matrix().T
+        t = -R @ pose.translation()
+        if prob.model == "f":
+            cal = values.atCal3f(K(c))
+            Kmat = np.array([[cal.fx(), 0, cal.px()], [0, cal.fx(), cal.py()], [0, 0, 1.0]])
+            dist = np.zeros(5)
+        else:
+            cal = values.atCal3DS2(K(c))
+            Kmat = cal.K()
+            k1, k2, p1, p2 = cal.k()
+            dist = np.array([k1, k2, p1, p2, 0.0])
+        cams.append(cam.with_(R=R, t=t, K=Kmat, dist=dist))
+    keys = prob.point_keys()
+    points = np.full(prob.points0.shape, np.nan)
+    for s, j in zip(*np.nonzero(keys >= 0), strict=True):
+        points[s, j] = values.atPoint3(P(int(keys[s, j])))
+    return cams, points
+
+
+def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, prob: GraphProblem
+                    ) -> list[dict[str, float]]:
+    """1-sigma focal (px), rotation (deg) and position (m) per camera from gtsam.Marginals.
+
+    Rotation and position are the largest axis of the world-frame covariance (the body-frame
+    block rotated by the camera's orientation). Returns NaN sigmas if gtsam cannot invert.
+    """
+    out = []
+    try:
+        marg = gtsam.Marginals(graph, values)
+    except RuntimeError as exc:
+        log.warning("marginal covariances unavailable: %s", exc)
+        return [dict(focal=np.nan, rotation=np.nan, position=np.nan) for _ in prob.cameras]
+    for c in range(len(prob.cameras)):
+        cov = marg.marginalCovariance(X(c))
+        R_wc = values.atPose3(X(c)).rotation().matrix()
+        rot = R_wc @ cov[:3, :3] @ R_wc.T
+        pos = R_wc @ cov[3:, 3:] @ R_wc.T
+        kc = marg.marginalCovariance(K(c))
+        f_var = kc[0, 0] if prob.model == "f" else 0.5 * (kc[0, 0] + kc[1, 1])
+        out.append(dict(focal=float(np.sqrt(f_var)),
+                        rotation=float(np.degrees(np.sqrt(np.linalg.eigvalsh(rot)[-1]))),
+                        position=float(np.sqrt(np.linalg.eigvalsh(pos)[-1]))))
+    return out

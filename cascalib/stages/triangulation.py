@@ -1,0 +1,133 @@
+"""Robust, confidence-weighted multi-view triangulation of many points at once.
+
+Used by stage V three times: to initialise the 3D joints of the factor graph, to check the
+consistency of a cross-view association, and to reconstruct every frame with the refined cameras.
+The linear (DLT) solution is computed on undistorted, normalised image coordinates so lens
+distortion is handled by :meth:`cascalib.camera.Camera.undistort`; iteratively reweighted least
+squares with Huber weights on the pixel reprojection error then suppresses outliers
+(Hartley & Zisserman, *Multiple View Geometry*, sec. 12.2, with robust reweighting).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.camera import Camera
+
+__all__ = ["reprojection_errors", "triangulate"]
+
+
+def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np.float64]
+                  ) -> NDArray[np.float64]:
+    """Batched weighted DLT.
+
+    Parameters
+    ----------
+    P : ndarray, shape (C, 3, 4)
+        Normalised projection matrices ``[R | t]``.
+    xy : ndarray, shape (C, N, 2)
+        Normalised coordinates (NaN where missing).
+    w : ndarray, shape (C, N)
+        Weights (0 where missing).
+
+    Returns
+    -------
+    X : ndarray, shape (N, 3)
+        NaN where fewer than two views have weight.
+    """
+    xy0 = np.nan_to_num(xy)
+    # rows x*P3 - P1 and y*P3 - P2 for every view: (N, 2C, 4)
+    r1 = xy0[..., 0:1] * P[:, None, 2, :] - P[:, None, 0, :]
+    r2 = xy0[..., 1:2] * P[:, None, 2, :] - P[:, None, 1, :]
+    A = np.concatenate([r1 * w[..., None], r2 * w[..., None]], axis=0).transpose(1, 0, 2)
+    n_views = (w > 0).sum(0)
+    X = np.full((xy.shape[1], 3), np.nan)
+    ok = n_views >= 2
+    if ok.any():
+        # A^T A (4x4) eigenvector is cheaper than an SVD of the tall matrix and as accurate here.
+        AtA = np.einsum("nki,nkj->nij", A[ok], A[ok])
+        _, vecs = np.linalg.eigh(AtA)
+        h = vecs[..., 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            X[ok] = h[:, :3] / h[:, 3:4]
+    return X
+
+
+def reprojection_errors(cameras: list[Camera], X: NDArray[np.float64], uv: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+    """Pixel distance between observations and reprojected points.
+
+    Parameters
+    ----------
+    cameras : list of Camera, length C
+    X : ndarray, shape (N, 3)
+    uv : ndarray, shape (C, N, 2)
+
+    Returns
+    -------
+    ndarray, shape (C, N)
+        NaN where the observation or the point is missing (or behind the camera).
+    """
+    proj = np.stack([cam.project(X) for cam in cameras])
+    return np.linalg.norm(proj - uv, axis=-1)
+
+
+def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np.float64] | None
+                = None, *, huber_px: float = 4.0, n_iter: int = 3, min_views: int = 2
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Triangulate N points seen by up to C cameras, robustly.
+
+    Parameters
+    ----------
+    cameras : list of Camera, length C
+    uv : ndarray, shape (C, N, 2)
+        Pixel observations, NaN where not seen.
+    conf : ndarray, shape (C, N), optional
+        Detection confidences (weights of the first solve); default 1.
+    huber_px : float
+        Huber threshold of the reprojection error (pixels) for the reweighting.
+    n_iter : int
+        Reweighting iterations after the first linear solve.
+    min_views : int
+        Points seen by fewer views are NaN.
+
+    Returns
+    -------
+    X : ndarray, shape (N, 3)
+        World points (NaN where not triangulable or behind a camera).
+    errors : ndarray, shape (C, N)
+        Reprojection error of each observation (px), NaN where unobserved.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    n_cams, n = uv.shape[:2]
+    if n == 0:
+        return np.zeros((0, 3)), np.zeros((n_cams, 0))
+    seen = np.isfinite(uv).all(-1)
+    c0 = np.ones((n_cams, n)) if conf is None else np.nan_to_num(np.asarray(conf, float))
+    c0 = np.where(seen, np.clip(c0, 1e-3, None), 0.0)
+    xy = np.stack([cam.undistort(uv[i]) for i, cam in enumerate(cameras)])
+    seen &= np.isfinite(xy).all(-1)
+    c0 = np.where(seen, c0, 0.0)
+    P = np.stack([np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
+    # a DLT row is scaled by the depth: divide by it (from the previous solution) so weights
+    # act on image-plane errors; focal converts normalised units to pixels
+    focal = np.array([cam.focal for cam in cameras])[:, None]
+    w = c0 * focal
+    X = _weighted_dlt(P, xy, w)
+    for _ in range(n_iter):
+        depth = np.einsum("cij,nj->cni", P[:, :, :3], np.nan_to_num(X))[..., 2] + P[:, None, 2, 3]
+        err = reprojection_errors(cameras, X, uv)
+        err = np.where(seen, np.nan_to_num(err, nan=1e6), 0.0)
+        huber = np.where(err <= huber_px, 1.0, huber_px / np.maximum(err, 1e-12))
+        # weights on squared residuals: sqrt for the linear rows
+        w = c0 * focal * np.sqrt(huber) / np.maximum(np.abs(depth), 1e-3)
+        w = np.where(seen & (depth > 0), w, 0.0)
+        X = _weighted_dlt(P, xy, w)
+    n_views = seen.sum(0)
+    X[n_views < min_views] = np.nan
+    errors = np.where(seen, reprojection_errors(cameras, X, uv), np.nan)
+    # an observation whose point lies behind its camera is an outlier, not a missing value
+    behind = np.isnan(errors) & seen & np.isfinite(X).all(-1)[None]
+    errors[behind] = np.inf
+    return X, errors
