@@ -105,8 +105,9 @@ class CalibrationErrors:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form (NaN becomes None)."""
-        return _json_safe({"cameras": [asdict(r) for r in self.cameras],
-                           "summary": asdict(self.summary)})
+        out: dict[str, Any] = _json_safe({"cameras": [asdict(r) for r in self.cameras],
+                                          "summary": asdict(self.summary)})
+        return out
 
     def table(self) -> str:
         """A printable text table: one line per camera, then the summary."""

@@ -125,7 +125,7 @@ OTHER_BAD = [
                                     "0.0, 0.0]", "rotation = [1.5, 0.0]"), "north", "rotation",
      "expected shape 3"),
     ("toml-matrix-not-rotation", _edit("rig_caliscope.toml", "[0.0, 0.0, -1.0], [-1.0",
-                                       "[0.0, 0.0, -1.0], [-2.0"), "cam_1", "R",
+                                       "[0.0, 0.0, -1.0], [-2.0"), "cam_1", "rotation",
      "not a rotation"),
     ("toml-distortions", _edit("rig_aniposelib.toml", "[-0.1, 0.01, 0.001, -0.002]", "[-0.1]"),
      "north", "distortions", "4 or 5 distortion"),
@@ -143,12 +143,20 @@ OTHER_BAD = [
      None, "line 5: expected 'IMAGE_ID"),
     ("opencv-missing-T", _edit("rig_opencv.yml", "T_east", "X_east"), "east", "T_east",
      "missing key 'T_east'"),
+    ("opencv-Rot-not-rotation", _edit("rig_opencv.yml", "data: [ 0., 1., 0., 0., 0., -1., -1.",
+                                      "data: [ 0., 1., 0., 0., 0., -1., -1.5"), "east",
+     "Rot_east", "not a rotation"),
+    ("colmap-negative-focal", _edit("colmap_rig", "7 SIMPLE_RADIAL 1280 720 800.0",
+                                    "7 SIMPLE_RADIAL 1280 720 -800.0"), "east", "params",
+     "focal lengths must be positive"),
+    ("colmap-size", _edit("colmap_rig", "7 SIMPLE_RADIAL 1280 720", "7 SIMPLE_RADIAL 1280 0"),
+     "east", "WIDTH HEIGHT", "two positive integers"),
     ("opencv-missing-names", _edit("rig_opencv.yml", "names:", "nombres:"), None, "names",
      "missing key 'names'"),
     ("easymocap-missing-R", _edit("easymocap_rig", "R_east", "Q_east"), "east", "R_east",
      "missing key 'R_east'"),
     ("easymocap-K", _edit("easymocap_rig", "800., 0., 640., 0., 800.", "800., 0., 640., 0., "
-                          "-800."), "east", "K", "focal lengths must be positive"),
+                          "-800."), "east", "K_east", "focal lengths must be positive"),
 ]
 
 
@@ -169,7 +177,7 @@ def test_bad_files_of_other_formats(tmp_path, make, camera, field, message):
      "not a number"),
     ('serial="cam_02" viewrotation="0"', 'serial="cam_02" viewrotation="90"', "cam_02",
      "viewrotation", "viewrotation=90 is not supported"),
-    ('r21="-0.4345300743838753"', 'r21="0.4345300743838753"', "cam_01", "R",
+    ('r21="-0.4345300743838753"', 'r21="0.4345300743838753"', "cam_01", "transform",
      "not a rotation"),
 ])
 def test_bad_qualisys_files(shared_data, tmp_path, old, new, camera, field, message):

@@ -66,28 +66,29 @@ def matrix(value: Any, shape: tuple[int, ...], *, file: str | None, camera: str 
     return arr
 
 
-def _check_image_size(size: Any, *, file: str | None, camera: str) -> tuple[int, int]:
-    arr = matrix(size, (2,), file=file, camera=camera, field="image_size")
+def _check_image_size(size: Any, *, file: str | None, camera: str, field: str
+                      ) -> tuple[int, int]:
+    arr = matrix(size, (2,), file=file, camera=camera, field=field)
     if (arr <= 0).any() or (arr != np.round(arr)).any():
         raise CalibrationFileError(f"image size must be two positive integers, got {size}",
-                                   file=file, camera=camera, field="image_size")
+                                   file=file, camera=camera, field=field)
     return int(arr[0]), int(arr[1])
 
 
-def _check_K(K: Any, *, file: str | None, camera: str) -> NDArray[np.float64]:
-    K = matrix(K, (3, 3), file=file, camera=camera, field="K")
-    if K[0, 0] <= 0 or K[1, 1] <= 0:
+def _check_K(K: Any, *, file: str | None, camera: str, field: str) -> NDArray[np.float64]:
+    k = matrix(K, (3, 3), file=file, camera=camera, field=field)
+    if k[0, 0] <= 0 or k[1, 1] <= 0:
         raise CalibrationFileError(
-            f"focal lengths must be positive, got fx={K[0, 0]:g}, fy={K[1, 1]:g}",
-            file=file, camera=camera, field="K")
-    if abs(K[1, 0]) > 1e-9 or abs(K[2, 0]) > 1e-9 or abs(K[2, 1]) > 1e-9 or abs(K[2, 2] - 1) > 1e-9:
+            f"focal lengths must be positive, got fx={k[0, 0]:g}, fy={k[1, 1]:g}",
+            file=file, camera=camera, field=field)
+    if abs(k[1, 0]) > 1e-9 or abs(k[2, 0]) > 1e-9 or abs(k[2, 1]) > 1e-9 or abs(k[2, 2] - 1) > 1e-9:
         raise CalibrationFileError(
-            f"not an upper-triangular intrinsic matrix with K[2,2] = 1: {K.tolist()}",
-            file=file, camera=camera, field="K")
-    return K
+            f"not an upper-triangular intrinsic matrix with K[2,2] = 1: {k.tolist()}",
+            file=file, camera=camera, field=field)
+    return k
 
 
-def _check_R(R: Any, *, file: str | None, camera: str, field: str = "R") -> NDArray[np.float64]:
+def _check_R(R: Any, *, file: str | None, camera: str, field: str) -> NDArray[np.float64]:
     R = matrix(R, (3, 3), file=file, camera=camera, field=field)
     off = float(np.abs(R @ R.T - np.eye(3)).max())
     if off > ROTATION_TOLERANCE:
@@ -129,7 +130,7 @@ def _finite_number(value: Any, *, file: str | None, camera: str, field: str) -> 
 
 def build_camera(name: str, *, image_size: Any, K: Any, dist: Any, R: Any, t: Any,
                  fps: Any = None, time_offset: Any = 0.0, time_rate: Any = 1.0,
-                 file: str | None = None, dist_field: str = "dist") -> Camera:
+                 file: str | None = None, fields: Mapping[str, str] | None = None) -> Camera:
     """Validate raw values and build a :class:`~cascalib.camera.Camera`.
 
     Parameters
@@ -152,8 +153,9 @@ def build_camera(name: str, *, image_size: Any, K: Any, dist: Any, R: Any, t: An
         Time mapping to the reference camera (rate must be positive).
     file : str, optional
         File named in error messages.
-    dist_field : str
-        Field name used for distortion errors (formats call it differently).
+    fields : mapping, optional
+        The file's own names of the fields, for error messages: ``{"K": "matrix", ...}``
+        (keys ``image_size``, ``K``, ``dist``, ``R``, ``t``; default: these names).
 
     Raises
     ------
@@ -163,12 +165,13 @@ def build_camera(name: str, *, image_size: Any, K: Any, dist: Any, R: Any, t: An
     if not isinstance(name, str) or not name:
         raise CalibrationFileError(f"camera name must be a non-empty string, got {name!r}",
                                    file=file, field="name")
-    size = _check_image_size(image_size, file=file, camera=name)
-    K_ = _check_K(K, file=file, camera=name)
-    R_ = _check_R(R, file=file, camera=name)
+    names = {k: k for k in ("image_size", "K", "dist", "R", "t")} | dict(fields or {})
+    size = _check_image_size(image_size, file=file, camera=name, field=names["image_size"])
+    K_ = _check_K(K, file=file, camera=name, field=names["K"])
+    R_ = _check_R(R, file=file, camera=name, field=names["R"])
     t_ = matrix(np.ravel(np.asarray(t, dtype=np.float64)) if _is_numeric(t) else t, (3,),
-                file=file, camera=name, field="t")
-    d_ = _check_dist(dist, file=file, camera=name, field=dist_field)
+                file=file, camera=name, field=names["t"])
+    d_ = _check_dist(dist, file=file, camera=name, field=names["dist"])
     fps_ = None if fps is None else _finite_number(fps, file=file, camera=name, field="fps")
     if fps_ is not None and fps_ <= 0:
         raise CalibrationFileError(f"fps must be positive, got {fps_:g}", file=file,

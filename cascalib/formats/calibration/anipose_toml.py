@@ -46,6 +46,8 @@ __all__ = ["from_dict", "read", "to_dict", "write"]
 logger = logging.getLogger(__name__)
 
 UNKNOWN_WORLD = "unknown (from TOML)"
+_FIELDS = {"image_size": "size", "K": "matrix", "dist": "distortions", "R": "rotation",
+           "t": "translation"}
 
 
 def to_dict(calib: Calibration) -> dict[str, Any]:
@@ -106,7 +108,7 @@ def _camera(name: str, entry: dict[str, Any], *, file: str | None) -> tuple[Came
     R = rot if is_matrix else rodrigues_to_matrix(
         matrix(rot, (3,), file=file, camera=name, field="rotation"))
     camera = build_camera(
-        name, file=file, dist_field="distortions",
+        name, file=file, fields=_FIELDS,
         image_size=require(entry, "size", file=file, camera=name),
         K=require(entry, "matrix", file=file, camera=name),
         dist=require(entry, "distortions", file=file, camera=name),

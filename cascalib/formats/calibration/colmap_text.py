@@ -35,6 +35,8 @@ from cascalib.formats.calibration._validate import build_camera, matrix
 __all__ = ["from_dict", "read", "to_dict", "write"]
 
 WORLD = "COLMAP model frame (as in the files)"
+_FIELDS = {"image_size": "WIDTH HEIGHT", "K": "params", "dist": "params", "R": "QW QX QY QZ",
+           "t": "TX TY TZ"}
 _IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 #: Number of parameters and the order of (fx, fy, cx, cy, dist...) per supported model.
 _MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5,
@@ -110,7 +112,7 @@ def from_dict(data: dict[str, list[dict[str, Any]]], *, file: str | None = None)
                                        file=file, camera=name, field="QW QX QY QZ")
         R = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
         cameras.append(build_camera(name, file=file, image_size=[row["width"], row["height"]],
-                                    K=K, dist=dist, R=R, t=img["tvec"], dist_field="params"))
+                                    K=K, dist=dist, R=R, t=img["tvec"], fields=_FIELDS))
     if not cameras:
         raise CalibrationFileError("no images in images.txt", file=file, field="images")
     try:

@@ -78,6 +78,7 @@ def camera_from_nodes(name: str, nodes: dict[str, Any], *, file: str | None,
     if dist is None:
         raise CalibrationFileError(f"missing node 'dist_{name}'", file=file, camera=name,
                                    field=f"dist_{name}")
+    r_field = f"Rot_{name}" if f"Rot_{name}" in nodes else f"R_{name}"
     if f"Rot_{name}" in nodes:
         R = nodes[f"Rot_{name}"]
     else:
@@ -90,7 +91,9 @@ def camera_from_nodes(name: str, nodes: dict[str, Any], *, file: str | None,
     return build_camera(
         name, file=file, image_size=size, K=K, dist=dist, R=R, t=t,
         fps=nodes.get(f"fps_{name}"), time_offset=nodes.get(f"time_offset_{name}", 0.0),
-        time_rate=nodes.get(f"time_rate_{name}", 1.0), dist_field=f"dist_{name}")
+        time_rate=nodes.get(f"time_rate_{name}", 1.0),
+        fields={"image_size": f"W_{name}", "K": f"K_{name}", "dist": f"dist_{name}",
+                "R": r_field, "t": f"T_{name}"})
 
 
 def _image_size(name: str, nodes: dict[str, Any], K: Any, *, file: str | None,

@@ -57,7 +57,7 @@ def to_dict_raw(root: ET.Element, *, file: str | None = None) -> list[dict[str, 
     cams = root.findall("./cameras/camera")
     if not cams:
         raise CalibrationFileError("no <cameras>/<camera> elements", file=file, field="cameras")
-    out = []
+    out: list[dict[str, Any]] = []
     for el in cams:
         serial = el.get("serial", f"camera_{len(out)}")
         entry: dict[str, Any] = {"serial": serial, "viewrotation": el.get("viewrotation", "0")}
@@ -87,16 +87,16 @@ def _camera(entry: dict[str, Any], *, file: str | None) -> Camera:
                   [0.0, get("intrinsic", "focalLengthV") / 64,
                    get("intrinsic", "centerPointV") / 64 - top],
                   [0.0, 0.0, 1.0]])
-    dist = [entry["intrinsic"].get(k, 0.0) for k in ("radialDistortion1", "radialDistortion2",
-                                                      "tangentalDistortion1",
-                                                      "tangentalDistortion2",
-                                                      "radialDistortion3")]
-    dist = np.array([float(v) for v in dist]) / 64  # Pose2Sim's convention, see module doc
+    # Pose2Sim's convention (see the module docstring); absent coefficients are zero.
+    dist = np.array([get("intrinsic", k) if k in entry["intrinsic"] else 0.0
+                     for k in ("radialDistortion1", "radialDistortion2", "tangentalDistortion1",
+                               "tangentalDistortion2", "radialDistortion3")]) / 64
     Rq = np.array([[get("transform", f"r{i}{j}") for j in (1, 2, 3)] for i in (1, 2, 3)])
     C = np.array([get("transform", k) for k in ("x", "y", "z")]) / 1000.0
     R = _FLIP @ Rq
     return build_camera(name, file=file, image_size=size, K=K, dist=dist, R=R, t=-R @ C,
-                        dist_field="intrinsic")
+                        fields={"image_size": "fov_video", "K": "intrinsic",
+                                "dist": "intrinsic", "R": "transform", "t": "transform"})
 
 
 def from_dict(entries: list[dict[str, Any]], *, file: str | None = None) -> Calibration:
