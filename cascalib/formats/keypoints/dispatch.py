@@ -73,7 +73,7 @@ def _classify_json(obj: Any, path: Path) -> str:
                      f"{', '.join(FORMATS)}", file=str(path), field="format")
 
 
-def _sniff(path: Path) -> tuple[str, Any]:
+def _sniff(path: Path, camera: Any = None) -> tuple[str, Any]:
     """(format, parsed JSON or None) of a path, from its content."""
     if not path.exists():
         raise InputError("no such file or folder", file=str(path))
@@ -88,7 +88,9 @@ def _sniff(path: Path) -> tuple[str, Any]:
         return "native-npz", None
     text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
     if text[:1] in (b"{", b"["):
-        obj = c.load_json(path)
+        # JSON formats hold one camera: name it in a syntax error as the reader would.
+        obj = c.load_json(path, camera=camera if isinstance(camera, str)
+                          else c.default_camera(path))
         return _classify_json(obj, path), obj
     if not text:
         raise InputError("the file is empty", file=str(path))
@@ -138,7 +140,7 @@ def read_tracks_many(path: str | Path, *, camera: Any = None,
         One per camera, in the file's order.
     """
     path = Path(path)
-    sniffed, obj = _sniff(path) if format is None else (None, None)
+    sniffed, obj = _sniff(path, camera) if format is None else (None, None)
     fmt = _format_name(format) if format is not None else sniffed
     if fmt == "native":
         fmt = "native-npz" if (sniffed or _sniff(path)[0]) == "native-npz" else "native-json"

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -44,9 +45,10 @@ CameraArg = str | Mapping[Any, str] | Sequence[str] | None
 
 
 def looks_like(header: str) -> bool:
-    """True when a CSV header line has the columns this module needs."""
+    """True when a CSV header line has caliscope's landmark columns (the reader then checks
+    that all the columns it needs are there)."""
     cols = {h.strip() for h in header.split(",")}
-    return set(_NEEDED) <= cols
+    return {"point_id", "img_loc_x"} <= cols
 
 
 def _header(path: Path) -> list[str]:
@@ -66,8 +68,12 @@ def _load(path: Path) -> dict[str, NDArray[np.float64]]:
                          field=missing[0])
     cols = [header.index(n) for n in _NEEDED]
     try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2,
-                          dtype=np.float64, converters=_empty_as_nan(cols), encoding="utf-8")
+        with warnings.catch_warnings():
+            # A header without rows is reported as "no detections" by the caller.
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2,
+                              dtype=np.float64, converters=_empty_as_nan(cols),
+                              encoding="utf-8")
     except ValueError:
         _raise_first_bad_row(path, cols)
         raise
