@@ -25,6 +25,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="camera of RESULT that rotations and time offsets refer to")
     p.add_argument("--from", dest="from_format", metavar="FMT", help="format of RESULT")
     p.add_argument("--truth-format", metavar="FMT", help="format of GT")
+    p.add_argument("--ground", action=argparse.BooleanOptionalAction, default=None,
+                   help="compute the ground-plane alignment (default: when both calibrations "
+                        "have the ground at z=0)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(run=run)
 
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     result = load_calibration(args.result, format=args.from_format)
     truth = load_calibration(args.truth, format=args.truth_format)
     errors = compare_calibrations(result, truth, mapping=parse_mapping(args.map),
-                                  reference=args.reference)
+                                  reference=args.reference, ground=args.ground)
     if args.json:
         print(json.dumps({"ok": True, "result": str(args.result), "truth": str(args.truth),
                           **errors.to_dict()}, indent=2))

@@ -55,3 +55,12 @@ def test_evaluate_bad_mapping_is_a_usage_error(capsys):
                  "--map", "north"])
     assert code == EXIT_USAGE
     assert "expected EST=GT" in capsys.readouterr().err
+
+
+def test_evaluate_ground_flag(capsys):
+    argv = ["evaluate", str(DATA / "rig_aniposelib.toml"), "--truth", str(DATA / "rig.json"),
+            "--json"]
+    assert main(argv) == 0  # the TOML's world is unknown: no ground alignment by default
+    assert json.loads(capsys.readouterr().out)["summary"]["center_error_ground_max"] is None
+    assert main([*argv, "--ground"]) == 0
+    assert json.loads(capsys.readouterr().out)["summary"]["center_error_ground_max"] < 1e-9

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -202,3 +203,12 @@ def test_real_files_survive_every_writer(shared_data, tmp_path):
         save_calibration(calib, tmp_path / target, format=fmt)
         for a, b in zip(load_calibration(tmp_path / target).cameras, calib.cameras, strict=True):
             assert_cameras_equal(a, b, time=False)
+
+
+def test_reference_camera_with_a_time_offset_is_read_with_a_warning(tmp_path, caplog):
+    data = json.loads((DATA / "rig.json").read_text())
+    data["cameras"]["north"]["time_offset"] = 3.0
+    (tmp_path / "c.json").write_text(json.dumps(data))
+    calib = load_calibration(tmp_path / "c.json")
+    assert calib["north"].time_offset == 3.0
+    assert "the schema expects 0 and 1" in caplog.text

@@ -18,6 +18,7 @@ keys are accepted on read (and dropped).
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,8 @@ from cascalib.errors import CalibrationFileError
 from cascalib.formats.calibration._validate import build_camera, require
 
 __all__ = ["SCHEMA", "from_dict", "read", "to_dict", "write"]
+
+logger = logging.getLogger(__name__)
 
 SCHEMA = "cascalib/calibration@1"
 _CAMERA_KEYS = ("image_size", "K", "dist", "R", "t", "fps", "time_offset", "time_rate")
@@ -90,9 +93,16 @@ def from_dict(data: Any, *, file: str | None = None) -> Calibration:
     if not isinstance(quality, dict):
         raise CalibrationFileError("'quality' must be an object", file=file, field="quality")
     try:
-        return Calibration(cameras, reference_camera=reference, quality=quality, world=str(world))
+        calib = Calibration(cameras, reference_camera=reference, quality=quality,
+                            world=str(world))
     except CalibrationFileError as exc:
         raise CalibrationFileError(exc.message, file=file, field=exc.field) from None
+    ref = calib[str(calib.reference_camera)]
+    if ref.time_offset != 0 or ref.time_rate != 1:
+        # Readable (metrics re-express times per reference camera) but against the contract.
+        logger.warning("%s: reference camera %s has time_offset %g and time_rate %g; the "
+                       "schema expects 0 and 1", file, ref.name, ref.time_offset, ref.time_rate)
+    return calib
 
 
 def read(path: str | Path) -> Calibration:
