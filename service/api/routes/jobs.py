@@ -1,0 +1,180 @@
+"""``/v1/jobs``: submit, poll, download, list, cancel and delete calibration jobs."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Header, Path, Query, Request, Response
+from fastapi.responses import FileResponse
+
+from api_schemas import (
+    RESULT_FORMATS,
+    JobCreated,
+    JobOptions,
+    JobPublic,
+    JobsPublic,
+    JobStatus,
+    Problem,
+)
+from service import store as st
+from service.api.deps import SessionDep, StateDep, TokenDep
+from service.core.problems import ProblemError
+from service.models import Job, JobFile
+from service.store import sha256_file
+from service.submit import links, submit_job
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+JobId = Annotated[str, Path(description="Job id (32 hex digits).", max_length=64)]
+_P = "application/problem+json"
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": Problem, "description": text, "content": {_P: {}}}
+    for code, text in [(401, "Missing or invalid token"), (404, "No such job (for this token)"),
+                       (422, "Invalid input")]}
+
+_UPLOAD_DOC: dict[str, Any] = {"requestBody": {"required": True, "content": {
+    "multipart/form-data": {
+        "schema": {"type": "object", "required": ["files"], "properties": {
+            "files": {"type": "array", "items": {"type": "string", "format": "binary"},
+                      "description": "One file per camera; the file name (without extension) "
+                      "is the camera name. Any supported keypoint format; a folder of per-frame "
+                      "JSON files as a zip."},
+            "options": {"type": "string", "description": "JobOptions as JSON text.",
+                        "contentMediaType": "application/json",
+                        "x-schema": JobOptions.model_json_schema()}}},
+        "encoding": {"options": {"contentType": "application/json"}},
+        "example": {"options": '{"image_size": "1920x1080", "fps": {"cam2": 25, "cam0": 30}, '
+                    '"height": 1.7}'}}}}}
+
+
+def to_public(job: Job) -> JobPublic:
+    """The API view of a job row."""
+    return JobPublic(id=job.id, status=JobStatus(job.status), stage=job.stage,
+                     progress=job.progress, cameras=list(job.cameras), attempts=job.attempts,
+                     created_at=job.created_at, started_at=job.started_at,
+                     finished_at=job.finished_at, error=job.error, links=links(job.id))
+
+
+def _job(session: SessionDep, owner: str, job_id: str) -> Job:
+    job = st.find_job(session, job_id=job_id, owner=owner)
+    if job is None:
+        raise ProblemError(404, f"no job {job_id!r}")
+    return job
+
+
+@router.post("", status_code=202, response_model=JobCreated, openapi_extra=_UPLOAD_DOC,
+             responses={**_ERRORS, 413: {"model": Problem, "description": "Upload too large"},
+                        415: {"model": Problem, "description": "Not multipart/form-data"}})
+async def create_job(request: Request, response: Response, state: StateDep, owner: TokenDep,
+                     idempotency_key: Annotated[str | None, Header(
+                         description="Retry-safe submission: the same key returns the same "
+                         "job.")] = None) -> JobCreated:
+    """Submit a calibration: one keypoint file per camera plus ``options`` (JSON).
+
+    Everything is validated before the job is accepted.
+    """
+    job, replayed = await submit_job(request, state, owner, idempotency_key)
+    response.headers["Location"] = f"/v1/jobs/{job.id}"
+    if replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    return JobCreated(id=job.id, status=JobStatus(job.status), links=links(job.id))
+
+
+@router.get("", response_model=JobsPublic, responses=_ERRORS)
+def list_jobs(session: SessionDep, owner: TokenDep, state: StateDep,
+              status: Annotated[JobStatus | None, Query(description="Only this state.")] = None,
+              limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+              offset: Annotated[int, Query(ge=0, le=10**9)] = 0) -> JobsPublic:
+    """Your jobs, newest first, one page at a time."""
+    limit = min(limit, state.settings.page_limit)
+    jobs, count = st.list_jobs(session, owner=owner, status=status.value if status else None,
+                               limit=limit, offset=offset)
+    return JobsPublic(data=[to_public(j) for j in jobs], count=count, limit=limit,
+                      offset=offset)
+
+
+@router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS)
+def read_job(job_id: JobId, session: SessionDep, owner: TokenDep) -> JobPublic:
+    """State, stage, progress, timestamps and error of a job."""
+    return to_public(_job(session, owner, job_id))
+
+
+def _serve(state: StateDep, job: Job, roles: tuple[str, ...], suffixes: tuple[str, ...],
+           media_type: str, what: str) -> FileResponse:
+    if job.status != "succeeded":
+        detail = f"job is {job.status}" + (f": {job.error}" if job.error else "")
+        raise ProblemError(409, f"no {what}: {detail}")
+    outputs = [f for f in job.files if f.kind == "output"]
+    found: JobFile | None = next((f for r in roles for f in outputs if f.role == r), None)
+    found = found or next((f for s in suffixes for f in outputs if f.path.endswith(s)), None)
+    if found is None:
+        raise ProblemError(404, f"this job produced no {what}")
+    path = state.store.job_dir(job.id) / found.path
+    if not path.is_file() or sha256_file(path) != found.sha256:
+        raise ProblemError(500, f"the stored {what} is damaged")
+    return FileResponse(path, media_type=media_type, filename=f"{job.id}-{path.name}",
+                        headers={"ETag": f'"{found.sha256}"'})
+
+
+_MEDIA = {"json": "application/json", "toml": "application/toml", "opencv": "application/yaml",
+          "colmap": "text/plain", "easymocap": "application/yaml"}
+_SUFFIX = {"json": "calibration.json", "toml": ".toml", "opencv": ".yml", "colmap": ".txt",
+           "easymocap": "intri.yml"}
+_CONFLICT: dict[int | str, dict[str, Any]] = {
+    409: {"model": Problem, "description": "Job not succeeded (yet)"}}
+
+
+@router.get("/{job_id}/result", responses={**_ERRORS, **_CONFLICT})
+def read_result(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
+                format: Annotated[Literal["json", "toml", "opencv", "colmap", "easymocap"],
+                                  Query(description="Calibration file format.")] = "json",
+                ) -> FileResponse:
+    """The calibration: native JSON, or another supported format."""
+    assert format in RESULT_FORMATS
+    return _serve(state, _job(session, owner, job_id), (format,), (_SUFFIX[format],),
+                  _MEDIA[format], f"{format} calibration")
+
+
+@router.get("/{job_id}/report", responses={**_ERRORS, **_CONFLICT})
+def read_report(job_id: JobId, session: SessionDep, owner: TokenDep,
+                state: StateDep) -> FileResponse:
+    """The HTML report of the calibration."""
+    return _serve(state, _job(session, owner, job_id), ("report", "html"), (".html",),
+                  "text/html", "report")
+
+
+@router.get("/{job_id}/poses", responses={**_ERRORS, **_CONFLICT})
+def read_poses(job_id: JobId, session: SessionDep, owner: TokenDep,
+               state: StateDep) -> FileResponse:
+    """The 3D poses (JSON when the job wrote it, else NumPy .npz)."""
+    job = _job(session, owner, job_id)
+    json_first = _serve_or_none(state, job, ("poses_json",), ("poses.json",), "application/json")
+    return json_first or _serve(state, job, ("poses", "poses_npz"), (".npz",),
+                                "application/octet-stream", "poses")
+
+
+def _serve_or_none(state: StateDep, job: Job, roles: tuple[str, ...], suffixes: tuple[str, ...],
+                   media: str) -> FileResponse | None:
+    if job.status != "succeeded":
+        return None
+    has = any(f.kind == "output" and (f.role in roles or f.path.endswith(suffixes))
+              for f in job.files)
+    return _serve(state, job, roles, suffixes, media, "poses") if has else None
+
+
+@router.delete("/{job_id}", responses={**_ERRORS, 200: {"model": JobPublic},
+                                       204: {"description": "Deleted with its files"}})
+def delete_job(job_id: JobId, session: SessionDep, owner: TokenDep,
+               state: StateDep) -> Response:
+    """Cancel a queued or running job (200, the job); delete a finished one (204)."""
+    job = _job(session, owner, job_id)
+    if job.status in ("queued", "running"):
+        st.cancel_job(session, job_id=job.id)
+        state.dispatcher.cancel(job.id)
+        session.refresh(job)
+        return Response(to_public(job).model_dump_json(), media_type="application/json")
+    if st.delete_job(session, job_id=job.id):
+        state.store.remove_files(job.id)
+    return Response(status_code=204)

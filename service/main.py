@@ -1,0 +1,117 @@
+"""The FastAPI application: ``create_app(settings)`` (nothing happens at import time).
+
+Start-up (the lifespan) migrates the database, refuses to run without authentication unless
+asked to, removes half-stored submissions a crash may have left, recovers jobs and starts the
+execution back-end: the embedded worker pool, or the Celery dispatcher when
+CASCALIB_BROKER_URL is set.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+
+from cascalib import __version__
+from service import store as st
+from service.api.deps import AppState, Dispatcher
+from service.api.routes import health, jobs
+from service.core.config import Settings
+from service.core.limits import BodyLimitMiddleware
+from service.core.metrics import Metrics
+from service.core.problems import install_handlers
+from service.store import Store
+
+__all__ = ["create_app"]
+
+log = logging.getLogger(__name__)
+
+DESCRIPTION = """\
+Calibrate and synchronise multi-camera rigs from the people in the scene.
+
+Submit one keypoint file per camera (the file name is the camera name) and the options:
+
+    curl -H "Authorization: Bearer $TOKEN" \\
+         -F files=@cam0.json -F files=@cam1.json -F files=@cam2.zip \\
+         -F 'options={"image_size": "1920x1080", "fps": {"cam2": 25, "cam0": 30}, "height": 1.7}' \\
+         http://127.0.0.1:8000/v1/jobs
+
+then poll `GET /v1/jobs/{id}` until `status` is `succeeded` and download
+`GET /v1/jobs/{id}/result` (`?format=toml|opencv|colmap|easymocap`), `/report` and `/poses`.
+Errors are `application/problem+json` bodies naming the camera, file and field.
+"""
+
+
+def _dispatcher(settings: Settings, store: Store) -> Dispatcher:
+    if settings.broker_url:
+        from service.worker.celery_app import CeleryDispatcher
+
+        return CeleryDispatcher(settings, store)
+    from service.worker.local_pool import LocalPool
+
+    return LocalPool(settings, store)
+
+
+def prepare_store(settings: Settings) -> Store:
+    """Open the store, migrate it and check the service may start.
+
+    Raises
+    ------
+    ConfigurationError
+        No token configured outside development mode (see ``Settings.check_startable``).
+    """
+    store = Store(settings.sqlalchemy_url, settings.data_dir)
+    try:
+        store.prepare()
+        with store.session() as session:
+            settings.check_startable(n_stored_tokens=st.count_api_tokens(session))
+    except BaseException:
+        store.dispose()
+        raise
+    return store
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The service application for ``settings`` (read from the environment when None)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        store = prepare_store(settings)
+        swept = store.sweep_orphans()
+        if swept:
+            log.warning("removed %d half-stored submission(s) left by a crash", swept)
+        if not settings.auth_enabled:
+            log.warning("authentication is OFF: every client sees every job")
+        dispatcher = _dispatcher(settings, store)
+        metrics = Metrics(store)
+        app.state.cascalib = AppState(settings, store, dispatcher, metrics)
+        dispatcher.start()
+        try:
+            yield
+        finally:
+            dispatcher.stop()
+            store.dispose()
+
+    app = FastAPI(title="cascalib calibration service", version=__version__,
+                  description=DESCRIPTION, lifespan=lifespan)
+    install_handlers(app)
+
+    @app.middleware("http")
+    async def _metrics(request, call_next):  # type: ignore[no-untyped-def]
+        state: AppState | None = getattr(request.app.state, "cascalib", None)
+        if state is None:
+            return await call_next(request)
+        return await state.metrics.middleware(request, call_next)
+
+    if settings.cors_origins:
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
+                           allow_methods=["GET", "POST", "DELETE"],
+                           allow_headers=["Authorization", "Content-Type", "Idempotency-Key"])
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_upload_bytes)
+    app.include_router(jobs.router)
+    app.include_router(health.router)
+    return app

@@ -1,0 +1,322 @@
+"""The job store: the only code that commits to the database.
+
+Functions take the ``Session`` first and everything else by keyword (the template's
+``crud.py``). Worker-side updates are *fenced* by the attempt number: a worker whose job was
+cancelled, or re-queued after it was presumed dead, can no longer write to it (the update
+matches no row and the function returns False).
+
+:class:`Store` bundles the engine, the session factory and the on-disk layout
+(``<data_dir>/jobs/<job id>/{inputs,outputs}/``: server-generated names only).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from pathlib import Path
+
+from sqlalchemy import Engine, func, select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, selectinload, sessionmaker
+
+from service.db import make_engine, migrate
+from service.models import ApiToken, Job, JobFile, utcnow
+
+__all__ = [
+    "StoredFile",
+    "Store",
+    "add_api_token",
+    "cancel_job",
+    "claim_job",
+    "count_api_tokens",
+    "count_by_status",
+    "create_job",
+    "delete_job",
+    "find_job",
+    "find_job_by_key",
+    "finish_job",
+    "list_jobs",
+    "queued_job_ids",
+    "release_job",
+    "requeue_or_fail",
+    "stale_jobs",
+    "token_known",
+    "update_progress",
+    "sha256_file",
+]
+
+log = logging.getLogger(__name__)
+
+QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
+    "queued", "running", "succeeded", "failed", "cancelled")
+FINISHED = (SUCCEEDED, FAILED, CANCELLED)
+
+
+def sha256_file(path: Path) -> str:
+    """SHA-256 hex digest of a file, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(2**20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class StoredFile:
+    """A file of a job: ``path`` relative to the job folder, ``role`` camera or output name."""
+
+    role: str
+    path: str
+    size: int
+    sha256: str
+    client_name: str | None = None
+
+
+class Store:
+    """Engine, sessions and file layout of one service installation."""
+
+    def __init__(self, database_url: str, data_dir: Path) -> None:
+        self.engine: Engine = make_engine(database_url)
+        self.sessions = sessionmaker(self.engine, expire_on_commit=False)
+        self.data_dir = data_dir
+        self.jobs_dir = data_dir / "jobs"
+        self.staging_dir = data_dir / "staging"
+
+    def prepare(self) -> None:
+        """Create the folders and bring the schema to the newest migration."""
+        self.jobs_dir.mkdir(parents=True, exist_ok=True)
+        self.staging_dir.mkdir(parents=True, exist_ok=True)
+        migrate(self.engine)
+
+    @contextmanager
+    def session(self) -> Iterator[Session]:
+        """A session closed on exit (callers commit through the functions below)."""
+        with self.sessions() as session:
+            yield session
+
+    def job_dir(self, job_id: str) -> Path:
+        """Folder of one job (job ids are server-generated hex strings)."""
+        if not job_id.isalnum():
+            raise ValueError(f"invalid job id {job_id!r}")
+        return self.jobs_dir / job_id
+
+    def remove_files(self, job_id: str) -> None:
+        """Delete a job's folder (after its row is gone)."""
+        shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
+
+    def sweep_orphans(self) -> int:
+        """Remove staging leftovers and job folders without a row (a crash mid-submission)."""
+        shutil.rmtree(self.staging_dir, ignore_errors=True)
+        self.staging_dir.mkdir(parents=True, exist_ok=True)
+        with self.session() as session:
+            known = set(session.scalars(select(Job.id)))
+        removed = 0
+        for d in self.jobs_dir.iterdir():
+            if d.is_dir() and d.name not in known:
+                shutil.rmtree(d, ignore_errors=True)
+                removed += 1
+        return removed
+
+    def dispose(self) -> None:
+        """Close every pooled connection."""
+        self.engine.dispose()
+
+
+# --- API side ----------------------------------------------------------------------------------
+
+def create_job(session: Session, *, job_id: str, owner: str, options: dict[str, object],
+               cameras: Sequence[str], inputs: Sequence[StoredFile],
+               idempotency_key: str | None, request_hash: str) -> Job:
+    """Insert a queued job with its input files.
+
+    Raises
+    ------
+    sqlalchemy.exc.IntegrityError
+        When the owner already has a job with this idempotency key (after rolling back).
+    """
+    job = Job(id=job_id, owner=owner, status=QUEUED, stage=None, progress=0.0,
+              options=options, cameras=list(cameras), idempotency_key=idempotency_key,
+              request_hash=request_hash, attempts=0)
+    job.files = [JobFile(kind="input", role=f.role, path=f.path, client_name=f.client_name,
+                         size=f.size, sha256=f.sha256) for f in inputs]
+    session.add(job)
+    try:
+        session.commit()
+    except IntegrityError:
+        session.rollback()
+        raise
+    return job
+
+
+def find_job(session: Session, *, job_id: str, owner: str | None) -> Job | None:
+    """The job, if it exists and belongs to ``owner`` (any owner when None)."""
+    stmt = select(Job).where(Job.id == job_id).options(selectinload(Job.files))
+    if owner is not None:
+        stmt = stmt.where(Job.owner == owner)
+    return session.scalars(stmt).first()
+
+
+def find_job_by_key(session: Session, *, owner: str, idempotency_key: str) -> Job | None:
+    """The owner's job submitted with this idempotency key."""
+    stmt = select(Job).where(Job.owner == owner, Job.idempotency_key == idempotency_key)
+    return session.scalars(stmt).first()
+
+
+def list_jobs(session: Session, *, owner: str, status: str | None, limit: int,
+              offset: int) -> tuple[list[Job], int]:
+    """One page of the owner's jobs, newest first, and the total matching count."""
+    where = [Job.owner == owner] + ([Job.status == status] if status else [])
+    count = session.scalar(select(func.count()).select_from(Job).where(*where)) or 0
+    stmt = (select(Job).where(*where).order_by(Job.created_at.desc(), Job.id)
+            .limit(limit).offset(offset))
+    return list(session.scalars(stmt)), int(count)
+
+
+def cancel_job(session: Session, *, job_id: str) -> str:
+    """Cancel a queued or running job; returns its status afterwards."""
+    now = utcnow()
+    session.execute(update(Job).where(Job.id == job_id, Job.status.in_((QUEUED, RUNNING)))
+                    .values(status=CANCELLED, finished_at=now, worker=None))
+    session.commit()
+    return session.scalars(select(Job.status).where(Job.id == job_id)).one()
+
+
+def delete_job(session: Session, *, job_id: str) -> bool:
+    """Delete a finished job's row (its files are removed by ``Store.remove_files``)."""
+    job = session.get(Job, job_id)
+    if job is None or job.status not in FINISHED:
+        return False
+    session.delete(job)
+    session.commit()
+    return True
+
+
+def count_by_status(session: Session) -> dict[str, int]:
+    """Number of jobs in each state (all owners), for the metrics."""
+    rows = session.execute(select(Job.status, func.count()).group_by(Job.status))
+    return {status: int(n) for status, n in rows}
+
+
+def add_api_token(session: Session, *, name: str, token: str) -> None:
+    """Keep a bearer token in the store (only its SHA-256)."""
+    session.add(ApiToken(name=name, token_sha256=hashlib.sha256(token.encode()).hexdigest()))
+    session.commit()
+
+
+def count_api_tokens(session: Session) -> int:
+    """How many tokens the store holds."""
+    return int(session.scalar(select(func.count()).select_from(ApiToken)) or 0)
+
+
+def token_known(session: Session, *, token_sha256: str) -> bool:
+    """Whether the store holds a token with this hash."""
+    stmt = select(ApiToken.id).where(ApiToken.token_sha256 == token_sha256)
+    return session.scalars(stmt).first() is not None
+
+
+# --- worker side -------------------------------------------------------------------------------
+
+def queued_job_ids(session: Session, *, limit: int) -> list[str]:
+    """Oldest queued jobs first."""
+    stmt = select(Job.id).where(Job.status == QUEUED).order_by(Job.created_at).limit(limit)
+    return list(session.scalars(stmt))
+
+
+def claim_job(session: Session, *, job_id: str, worker: str) -> int | None:
+    """Atomically move a queued job to running; returns the attempt number, None if not queued.
+
+    Two workers claiming the same job (a duplicated broker message) cannot both win: the
+    update matches ``status='queued'`` and only one of them changes the row.
+    """
+    now = utcnow()
+    res = session.execute(
+        update(Job).where(Job.id == job_id, Job.status == QUEUED)
+        .values(status=RUNNING, attempts=Job.attempts + 1, worker=worker, heartbeat_at=now,
+                started_at=now, stage="loading", progress=0.0, error=None))
+    session.commit()
+    if getattr(res, "rowcount", 0) != 1:
+        return None
+    return int(session.scalars(select(Job.attempts).where(Job.id == job_id)).one())
+
+
+def _fenced(job_id: str, attempt: int):  # type: ignore[no-untyped-def]
+    return update(Job).where(Job.id == job_id, Job.status == RUNNING, Job.attempts == attempt)
+
+
+def update_progress(session: Session, *, job_id: str, attempt: int, stage: str | None,
+                    progress: float | None) -> bool:
+    """Record progress and a heartbeat; False when the job is no longer this attempt's."""
+    values: dict[str, object] = {"heartbeat_at": utcnow()}
+    if stage is not None:
+        values["stage"] = stage[:64]
+    if progress is not None:
+        values["progress"] = min(max(float(progress), 0.0), 1.0)
+    res = session.execute(_fenced(job_id, attempt).values(**values))
+    session.commit()
+    return getattr(res, "rowcount", 0) == 1
+
+
+def finish_job(session: Session, *, job_id: str, attempt: int, status: str,
+               error: str | None = None, outputs: Sequence[StoredFile] = ()) -> bool:
+    """Move a running job to a terminal state and record its outputs, in one transaction."""
+    res = session.execute(_fenced(job_id, attempt).values(
+        status=status, error=error, finished_at=utcnow(), worker=None,
+        progress=1.0 if status == SUCCEEDED else Job.progress,
+        stage="done" if status == SUCCEEDED else Job.stage))
+    if getattr(res, "rowcount", 0) != 1:
+        session.rollback()
+        return False
+    session.add_all([JobFile(job_id=job_id, kind="output", role=f.role, path=f.path,
+                             size=f.size, sha256=f.sha256) for f in outputs])
+    session.commit()
+    return True
+
+
+def release_job(session: Session, *, job_id: str, attempt: int) -> bool:
+    """Put a running job back in the queue without counting the attempt (orderly shutdown)."""
+    res = session.execute(_fenced(job_id, attempt).values(
+        status=QUEUED, attempts=Job.attempts - 1, worker=None, stage=None, progress=0.0))
+    session.commit()
+    return getattr(res, "rowcount", 0) == 1
+
+
+def requeue_or_fail(session: Session, *, job_id: str, attempt: int, reason: str,
+                    max_attempts: int) -> str | None:
+    """A worker died during ``attempt``: queue the job again, or fail it after max_attempts.
+
+    Returns the new status, or None when the job had already moved on.
+    """
+    job = session.get(Job, job_id)
+    if job is None or job.status != RUNNING or job.attempts != attempt:
+        return None
+    if attempt >= max_attempts:
+        new = FAILED
+        values: dict[str, object] = {
+            "status": FAILED, "finished_at": utcnow(), "worker": None,
+            "error": f"{reason}; gave up after {attempt} attempt(s)"}
+    else:
+        new = QUEUED
+        values = {"status": QUEUED, "worker": None, "stage": None, "progress": 0.0,
+                  "error": None}
+    res = session.execute(_fenced(job_id, attempt).values(**values))
+    session.commit()
+    if getattr(res, "rowcount", 0) != 1:
+        return None
+    log.warning("job %s attempt %d: %s -> %s", job_id, attempt, reason, new)
+    return new
+
+
+def stale_jobs(session: Session, *, now: datetime, stale_after: timedelta,
+               worker_prefix: str | None = None) -> list[tuple[str, int, str | None]]:
+    """Running jobs whose heartbeat is older than ``stale_after`` (or whose worker belongs to
+    ``worker_prefix``, a previous instance): ``(id, attempt, worker)`` each."""
+    cond = Job.heartbeat_at < now - stale_after
+    if worker_prefix is not None:
+        cond = cond | Job.worker.startswith(worker_prefix)
+    stmt = select(Job.id, Job.attempts, Job.worker).where(Job.status == RUNNING, cond)
+    return [(i, int(a), w) for i, a, w in session.execute(stmt)]

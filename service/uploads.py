@@ -1,0 +1,213 @@
+"""Accepting a submission: multipart parsing, limits, staging and full validation.
+
+A submission is staged in ``<data_dir>/staging/<random>/`` under server-made names
+(``cam_<i>.<ext>``), checksummed, validated exactly as the worker will read it, and only then
+moved into ``<data_dir>/jobs/<job id>/inputs/``. Anything rejected is deleted whole: nothing is
+stored half.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+from starlette.datastructures import UploadFile
+from starlette.exceptions import HTTPException
+from starlette.requests import Request
+
+from api_schemas import InvalidParam, JobOptions
+from cascalib.errors import CascalibError
+from service.core.config import Settings
+from service.core.problems import ProblemError, from_cascalib
+from service.inputs import ZipLimits, build_config, is_zip, read_camera, safe_extract
+from service.store import StoredFile, sha256_file
+
+__all__ = ["Submission", "receive_submission", "validate_submission", "FILES_FIELD",
+           "OPTIONS_FIELD"]
+
+FILES_FIELD = "files"
+OPTIONS_FIELD = "options"
+_CAMERA = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+_EXT = re.compile(r"^[A-Za-z0-9]{1,8}$")
+
+
+@dataclass
+class Submission:
+    """A staged, checksummed upload (not yet validated as keypoints)."""
+
+    folder: Path
+    options: JobOptions
+    options_json: dict[str, Any]
+    cameras: list[str] = field(default_factory=list)
+    files: list[StoredFile] = field(default_factory=list)
+
+    @property
+    def request_hash(self) -> str:
+        """Fingerprint of what was asked (options and file contents) for idempotency."""
+        h = hashlib.sha256(json.dumps(self.options_json, sort_keys=True).encode())
+        for f in self.files:
+            h.update(f"\0{f.role}\0{f.sha256}".encode())
+        return h.hexdigest()
+
+    def discard(self) -> None:
+        """Delete the staged files."""
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _bad(detail: str, *, field: str, file: str | None = None, camera: str | None = None,
+         status: int = 422) -> ProblemError:
+    return ProblemError(status, detail, errors=[InvalidParam(message=detail, field=field,
+                                                            file=file, camera=camera)])
+
+
+def camera_name(filename: str | None) -> tuple[str, str]:
+    """Camera name and lower-case extension ('' if none) from an upload's file name."""
+    if not filename:
+        raise _bad("every camera file needs a file name (the camera name)", field=FILES_FIELD)
+    if any(c in filename for c in "/\\\0") or filename.startswith("."):
+        raise _bad(f"file name {filename!r} must be a plain name, not a path",
+                   field=FILES_FIELD, file=filename)
+    stem, dot, ext = filename.rpartition(".")
+    if not dot or not _EXT.match(ext):
+        stem, ext = filename, ""
+    if not _CAMERA.match(stem):
+        raise _bad(f"camera name {stem!r} (from file name {filename!r}) must be 1-64 letters, "
+                   "digits, '_', '-' or '.', starting with a letter or digit",
+                   field=FILES_FIELD, file=filename)
+    return stem, ext.lower()
+
+
+def parse_options(raw: str | None) -> tuple[JobOptions, dict[str, Any]]:
+    """The ``options`` part as :class:`JobOptions` (422 naming the option on error)."""
+    try:
+        data = json.loads(raw) if raw else {}
+    except json.JSONDecodeError as exc:
+        raise _bad(f"options is not valid JSON: {exc}", field=OPTIONS_FIELD) from None
+    if not isinstance(data, dict):
+        raise _bad("options must be a JSON object", field=OPTIONS_FIELD)
+    try:
+        return JobOptions.model_validate(data), data
+    except ValidationError as exc:
+        errors = [InvalidParam(message=e["msg"], field=".".join(
+            [OPTIONS_FIELD, *(str(p) for p in e["loc"])])) for e in exc.errors()]
+        raise ProblemError(422, "invalid options: " + "; ".join(
+            f"{p.field}: {p.message}" for p in errors), errors=errors) from None
+
+
+async def _read_form(request: Request, settings: Settings) -> tuple[list[UploadFile], str | None]:
+    ctype = request.headers.get("content-type", "")
+    if not ctype.startswith("multipart/form-data"):
+        raise ProblemError(415, "POST /v1/jobs takes multipart/form-data")
+    try:
+        form = await request.form(max_files=settings.max_files, max_fields=16,
+                                  max_part_size=1024 * 1024)
+    except HTTPException as exc:
+        status = 413 if "Too many files" in str(exc.detail) else 400
+        raise _bad(f"malformed multipart body: {exc.detail}", field=FILES_FIELD,
+                   status=status) from None
+    uploads: list[UploadFile] = []
+    options: str | None = None
+    for key, value in form.multi_items():
+        if key == FILES_FIELD and isinstance(value, UploadFile):
+            uploads.append(value)
+        elif key == OPTIONS_FIELD and isinstance(value, str) and options is None:
+            options = value
+        else:
+            raise _bad(f"unexpected form part {key!r} (expected '{FILES_FIELD}' files and one "
+                       f"'{OPTIONS_FIELD}' JSON text)", field=key)
+    if not uploads:
+        raise _bad("no camera file uploaded", field=FILES_FIELD)
+    return uploads, options
+
+
+async def receive_submission(request: Request, settings: Settings, staging: Path) -> Submission:
+    """Parse, limit and stage a submission (checksums, no keypoint parsing yet)."""
+    uploads, raw_options = await _read_form(request, settings)
+    options, options_json = parse_options(raw_options)
+    staging.mkdir(parents=True, exist_ok=True)
+    sub = Submission(Path(tempfile.mkdtemp(dir=staging)), options, options_json)
+    try:
+        (sub.folder / "inputs").mkdir()
+        for i, upload in enumerate(uploads):
+            camera, ext = camera_name(upload.filename)
+            if camera in sub.cameras:
+                raise _bad(f"two files for camera {camera!r}", field=FILES_FIELD,
+                           file=upload.filename, camera=camera)
+            rel = f"inputs/cam_{i}" + (f".{ext}" if ext else "")
+            with (sub.folder / rel).open("wb") as out:
+                await upload.seek(0)
+                shutil.copyfileobj(upload.file, out, 2**20)
+            path = sub.folder / rel
+            size = path.stat().st_size
+            if size == 0:
+                raise _bad("the file is empty", field=FILES_FIELD, file=upload.filename,
+                           camera=camera)
+            sub.cameras.append(camera)
+            sub.files.append(StoredFile(role=camera, path=rel, size=size,
+                                        sha256=sha256_file(path), client_name=upload.filename))
+    except BaseException:
+        sub.discard()
+        raise
+    return sub
+
+
+def _relocate(exc: CascalibError, sub: Submission, work: Path) -> ProblemError:
+    """Replace server paths in a library error by the client's file names."""
+    problem = from_cascalib(exc)
+    for f in sub.files:
+        for server in (str(work / f.role), str(sub.folder / f.path)):
+            problem.detail = problem.detail.replace(server, f.client_name or f.role)
+            for p in problem.errors:
+                for attr in ("file", "message"):
+                    val = getattr(p, attr)
+                    if val and server in val:
+                        setattr(p, attr, val.replace(server, f.client_name or f.role))
+    return problem
+
+
+def _check_option_cameras(sub: Submission) -> None:
+    for option, keys in sub.options.per_camera_keys().items():
+        for key in keys:
+            if key not in sub.cameras:
+                raise _bad(f"options.{option} names camera {key!r}, which was not uploaded "
+                           f"(cameras: {', '.join(sub.cameras)})", field=f"options.{option}.{key}")
+    ref = sub.options.reference_camera
+    if ref is not None and ref not in sub.cameras:
+        raise _bad(f"reference camera {ref!r} was not uploaded", field="options.reference_camera")
+
+
+def validate_submission(sub: Submission, settings: Settings) -> None:
+    """Read every camera exactly as the worker will; raise a 4xx problem on the first fault.
+
+    Blocking (parses files): call it in a thread.
+    """
+    _check_option_cameras(sub)
+    try:
+        build_config(sub.options)
+    except ImportError:
+        pass  # the library's config is not installed: the job fails with that reason when run
+    except ValidationError as exc:
+        errors = [InvalidParam(message=e["msg"], field=".".join(
+            ["options.config", *(str(p) for p in e["loc"])])) for e in exc.errors()]
+        raise ProblemError(422, "invalid calibration settings", errors=errors) from None
+    limits = ZipLimits(settings.max_zip_members, settings.max_unzipped_bytes,
+                       settings.max_zip_ratio)
+    with tempfile.TemporaryDirectory(dir=sub.folder) as tmp:
+        work = Path(tmp)
+        for f in sub.files:
+            path = sub.folder / f.path
+            try:
+                if is_zip(path):
+                    path = safe_extract(path, work / f.role, limits, file=f.client_name or f.role)
+                read_camera(path, f.role, sub.options)
+            except CascalibError as exc:
+                raise _relocate(exc, sub, work) from None
+            except ImportError as exc:
+                raise ProblemError(503, f"keypoint readers unavailable: {exc}") from None

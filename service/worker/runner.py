@@ -1,0 +1,180 @@
+"""Running one job: the code both execution back-ends share.
+
+:func:`run_job` is the calibration itself (inputs -> ``calibrate`` -> saved outputs).
+:func:`execute_claimed` wraps it for a worker that has claimed the job: a heartbeat thread,
+throttled progress writes, cancellation, and the final state with a reason. The embedded pool
+(``local_pool.py``) and Celery (``celery_app.py``) are thin adapters around these two.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from api_schemas import RESULT_FORMATS, JobOptions
+from cascalib.errors import CascalibError
+from service import store as st
+from service.inputs import ZipLimits, build_config, is_zip, read_camera, safe_extract
+from service.store import Store, StoredFile, sha256_file
+
+__all__ = ["JobCancelled", "run_job", "execute_claimed"]
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[str, float], None]
+
+
+class JobCancelled(Exception):
+    """The job was cancelled (or taken away from this worker) while it ran."""
+
+
+def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits) -> list[Any]:
+    options = JobOptions.model_validate(job.options)
+    tracks: list[Any] = []
+    for f in (f for f in job.files if f.kind == "input"):
+        path = job_dir / f.path
+        if sha256_file(path) != f.sha256:
+            raise CascalibError("stored input changed on disk (checksum mismatch)",
+                                file=f.client_name, camera=f.role)
+        if is_zip(path):
+            path = safe_extract(path, work / f"cam_{len(tracks)}", limits,
+                                file=f.client_name or f.role)
+        tracks.append(read_camera(path, f.role, options))
+    return tracks
+
+
+def _save_outputs(result: Any, job_dir: Path) -> list[StoredFile]:
+    tmp = job_dir / "outputs.partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    saved = result.save(tmp, formats=RESULT_FORMATS)
+    final = job_dir / "outputs"
+    shutil.rmtree(final, ignore_errors=True)
+    tmp.rename(final)
+    roles = {Path(p).resolve(): str(role) for role, p in dict(saved).items()}
+    outputs = []
+    for path in sorted(p for p in final.rglob("*") if p.is_file()):
+        rel = path.relative_to(job_dir)
+        role = roles.get((tmp / path.relative_to(final)).resolve(), str(rel.relative_to("outputs")))
+        outputs.append(StoredFile(role=role[:64], path=str(rel), size=path.stat().st_size,
+                                  sha256=sha256_file(path)))
+    return outputs
+
+
+def run_job(job_id: str, store: Store, progress: Progress, *,
+            limits: ZipLimits | None = None) -> list[StoredFile]:
+    """Calibrate one job from its stored inputs; returns the output files written.
+
+    Raises
+    ------
+    CascalibError
+        Bad input or a calibration that failed (the message says why).
+    ImportError
+        The calibration pipeline is not installed.
+    JobCancelled
+        Raised by ``progress`` when the job was cancelled meanwhile.
+    """
+    from service.core.config import Settings
+
+    if limits is None:
+        s = Settings()
+        limits = ZipLimits(s.max_zip_members, s.max_unzipped_bytes, s.max_zip_ratio)
+    with store.session() as session:
+        job = st.find_job(session, job_id=job_id, owner=None)
+        if job is None:
+            raise JobCancelled(f"job {job_id} no longer exists")
+        options = JobOptions.model_validate(job.options)
+        job_dir = store.job_dir(job_id)
+        progress("loading", 0.0)
+        with tempfile.TemporaryDirectory(dir=job_dir) as tmp:
+            tracks = _load_tracks(job, job_dir, Path(tmp), limits)
+    config = build_config(options)
+    from cascalib.pipeline import (  # type: ignore[import-not-found,unused-ignore]
+        calibrate,
+    )
+
+    result = calibrate(tracks, config, progress=progress)
+    progress("saving", 1.0)
+    return _save_outputs(result, job_dir)
+
+
+class _Reporter:
+    """Progress callback + heartbeat thread, fenced by the attempt number."""
+
+    def __init__(self, store: Store, job_id: str, attempt: int, period: float) -> None:
+        self.store, self.job_id, self.attempt, self.period = store, job_id, attempt, period
+        self.lost = threading.Event()
+        self._stop = threading.Event()
+        self._last = 0.0
+        self._stage: str | None = None
+        self._thread = threading.Thread(target=self._beat, daemon=True, name=f"hb-{job_id}")
+
+    def _write(self, stage: str | None, fraction: float | None) -> None:
+        with self.store.session() as session:
+            ok = st.update_progress(session, job_id=self.job_id, attempt=self.attempt,
+                                    stage=stage, progress=fraction)
+        if not ok:
+            self.lost.set()
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                self._write(None, None)
+            except Exception:  # a database hiccup must not kill the heartbeat for good
+                log.warning("heartbeat of job %s failed", self.job_id, exc_info=True)
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        now = time.monotonic()
+        if stage != self._stage or now - self._last > 0.5:
+            self._stage, self._last = stage, now
+            self._write(stage, fraction)
+        if self.lost.is_set():
+            raise JobCancelled(f"job {self.job_id} was cancelled")
+
+    def __enter__(self) -> _Reporter:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def _client_message(exc: CascalibError, store: Store, job_id: str) -> str:
+    """The error text without server paths."""
+    text = str(exc)
+    return text.replace(str(store.job_dir(job_id)) + "/", "").replace(str(store.data_dir), "")
+
+
+def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float,
+                    limits: ZipLimits | None = None) -> str:
+    """Run a job this worker has claimed and record how it ended; returns the final status."""
+    status, error, outputs = st.FAILED, None, []
+    with _Reporter(store, job_id, attempt, heartbeat) as reporter:
+        try:
+            outputs = run_job(job_id, store, reporter, limits=limits)
+            status = st.SUCCEEDED
+        except JobCancelled:
+            status = st.CANCELLED
+        except CascalibError as exc:
+            error = _client_message(exc, store, job_id)
+        except ImportError as exc:
+            error = f"the calibration pipeline is not available in this installation ({exc})"
+        except Exception as exc:
+            log.exception("job %s attempt %d crashed", job_id, attempt)
+            error = f"internal error: {type(exc).__name__}: {exc}"[:2000]
+    if status == st.CANCELLED:
+        log.info("job %s stopped: cancelled", job_id)
+        return status
+    with store.session() as session:
+        if not st.finish_job(session, job_id=job_id, attempt=attempt, status=status,
+                             error=error, outputs=outputs):
+            log.info("job %s attempt %d finished but was cancelled meanwhile", job_id, attempt)
+            return st.CANCELLED
+    log.info("job %s attempt %d: %s%s", job_id, attempt, status, f" ({error})" if error else "")
+    return status
