@@ -8,6 +8,7 @@ round trip exactly.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -43,8 +44,16 @@ def read_nodes(path: str | Path) -> dict[str, Any]:
         raise CalibrationFileError("file not found", file=str(path))
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise CalibrationFileError(f"OpenCV cannot parse this file: {exc.err}",
+    except (cv2.error, SystemError) as exc:
+        # OpenCV 5's binding wraps the parser's cv2.error in a SystemError
+        cause = exc if isinstance(exc, cv2.error) else exc.__cause__ or exc
+        # OpenCV's message ends with "in function '<file>(<line>): <what>'"
+        detail = str(getattr(cause, "msg", None) or cause).strip().rstrip("'")
+        detail = detail.rsplit("): ", 1)[-1] if "): " in detail else detail
+        line = re.search(r"\((\d+)\): ", str(getattr(cause, "msg", "")))
+        if line:
+            detail = f"line {line.group(1)}: {detail}"
+        raise CalibrationFileError(f"OpenCV cannot parse this file: {detail}",
                                    file=str(path)) from None
     try:
         if not fs.isOpened():
