@@ -173,14 +173,16 @@ class Camera:
         out = np.full_like(flat, np.nan)
         ok = np.isfinite(flat).all(1)
         if ok.any():
+            Kinv = np.linalg.inv(self.K)
+            h = np.c_[flat[ok], np.ones(ok.sum())] @ Kinv.T
+            xy = h[:, :2] / h[:, 2:3]  # distorted normalised coordinates (exact with skew)
             if self.has_distortion:
+                # Iterate with an identity K: OpenCV's undistortPoints ignores K[0, 1] (skew),
+                # which would make undistort() disagree with project() for skewed cameras.
                 crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
-                und = _undistort_iter(flat[ok].reshape(-1, 1, 2), self.K, self.dist, crit)
-                out[ok] = und.reshape(-1, 2)
-            else:
-                Kinv = np.linalg.inv(self.K)
-                h = np.c_[flat[ok], np.ones(ok.sum())] @ Kinv.T
-                out[ok] = h[:, :2] / h[:, 2:3]
+                xy = _undistort_iter(xy.reshape(-1, 1, 2), np.eye(3), self.dist,
+                                     crit).reshape(-1, 2)
+            out[ok] = xy
         return out.reshape(shape)
 
     def undistort_pixels(self, uv: ArrayLike) -> NDArray[np.float64]:

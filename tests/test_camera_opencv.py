@@ -118,3 +118,19 @@ def test_look_at_axes_follow_opencv_convention():
     # straight down: still a valid rotation
     R, _ = look_at([0, 0, 5.0], [0, 0, 0.0])
     assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("dist", [None, [-0.25, 0.07, 0.001, -0.002, -0.01]])
+def test_skewed_camera_undistort_inverts_project(dist):
+    """OpenCV's projectPoints/undistortPoints ignore K[0, 1]; cascalib applies the full K in both
+    directions, so a skewed camera stays self-consistent (and equals OpenCV when skew = 0)."""
+    R, t = look_at([3.0, -5.0, 2.2], [0.2, 0.4, 0.9])
+    K = np.array([[910.0, 4.0, 650.0], [0.0, 905.0, 350.0], [0.0, 0.0, 1.0]])
+    cam = Camera("c", (1280, 720), K, dist, R, t)
+    X = np.random.default_rng(5).uniform(-1.5, 1.5, (100, 3)) + [0, 0, 1]
+    Xc = cam.world_to_cam(X)
+    np.testing.assert_allclose(cam.undistort(cam.project(X)), Xc[:, :2] / Xc[:, 2:], atol=1e-12)
+    no_skew = cam.with_(K=K * [[1, 0, 1], [1, 1, 1], [1, 1, 1]])
+    shift = cam.project(X) - no_skew.project(X)
+    xy = distort_normalized(Xc[:, :2] / Xc[:, 2:], cam.dist) if dist else Xc[:, :2] / Xc[:, 2:]
+    np.testing.assert_allclose(shift[:, 0], 4.0 * xy[:, 1], atol=1e-9)  # u += s * y
