@@ -212,3 +212,8 @@ def test_reference_camera_with_a_time_offset_is_read_with_a_warning(tmp_path, ca
     calib = load_calibration(tmp_path / "c.json")
     assert calib["north"].time_offset == 3.0
     assert "the schema expects 0 and 1" in caplog.text
+
+
+def test_a_folder_with_calibration_json_is_read(tmp_path):
+    shutil.copy(DATA / "rig.json", tmp_path / "calibration.json")
+    assert load_calibration(tmp_path).names == ["north", "east"]

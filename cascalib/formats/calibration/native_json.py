@@ -106,8 +106,12 @@ def from_dict(data: Any, *, file: str | None = None) -> Calibration:
 
 
 def read(path: str | Path) -> Calibration:
-    """Read a ``calibration.json`` file."""
+    """Read a ``calibration.json`` file (or the one in the folder ``path``)."""
     path = Path(path)
+    if path.is_dir():
+        path = path / "calibration.json"
+    if not path.is_file():
+        raise CalibrationFileError("file not found", file=str(path))
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
