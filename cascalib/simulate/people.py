@@ -59,7 +59,8 @@ class PeopleConfig(BaseModel):
     area: tuple[float, float] = Field(
         (8.0, 8.0), description="Capture area (x, y) size in m, centred on the origin.")
     curviness: float = Field(
-        0.35, ge=0.0, description="Path curvature noise (rad per sqrt(m)); 0 walks straight.")
+        0.2, ge=0.0, description="s.d. of the path curvature (rad/m, correlated over ~3 m); "
+        "0 walks straight.")
     walk_mean_s: float = Field(8.0, gt=0.0, description="Mean duration of a walking bout (s).")
     pause_prob: float = Field(
         0.3, ge=0.0, le=1.0, description="Probability that a walking bout ends in a pause.")
@@ -68,6 +69,9 @@ class PeopleConfig(BaseModel):
     action_prob: float = Field(
         0.4, ge=0.0, le=1.0,
         description="Probability that a pause is spent on a non-standing action.")
+    turn_prob: float = Field(
+        0.5, ge=0.0, le=1.0, description="Probability that a person turns the body on the "
+        "spot (30-90 deg, feet planted) during a pause.")
     actions: tuple[str, ...] = Field(
         ("bend", "sit", "crouch", "raise_arms"), description="Actions to draw from.")
     periodic: bool = Field(
@@ -89,8 +93,9 @@ class Person:
         Path direction at those points (rad).
     s : ndarray, shape (M,)
         Arc length walked at times ``k * DT``.
-    posture : ndarray, shape (M, 4)
-        Action posture targets (see :data:`ACTIONS`) times their fade weight.
+    posture : ndarray, shape (M, 5)
+        Action posture targets (see :data:`ACTIONS`) times their fade weight, and the body yaw
+        relative to the path (turning on the spot).
     """
 
     body: BodyModel
@@ -136,10 +141,12 @@ class Person:
         p0, h0 = self._footprint(s0, side)
         p1, h1 = self._footprint(s1, side)
         xy = p0 + u_s[:, None] * (p1 - p0)
+        pitch = 0.35 * np.sin(2 * np.pi * u) * swing  # toes down at push-off, up at landing
         lift = 0.045 * self.height * np.sin(np.pi * u)
-        z = self.body.ankle_height + lift
+        # Raise the ankle further where the pitched-down toes would touch the ground.
+        toe_drop = self.height * (0.115 * np.sin(pitch) + 0.033 * (np.cos(pitch) - 1))
+        z = self.body.ankle_height + np.maximum(lift, toe_drop)
         yaw = h0 + u_s * (h1 - h0)
-        pitch = 0.35 * np.sin(2 * np.pi * u) * swing
         return np.column_stack([xy, z]), yaw, pitch
 
     def _footprint(self, s: NDArray[np.float64], side: int) -> tuple[NDArray[np.float64], ...]:
@@ -154,7 +161,9 @@ class Person:
         xy, heading = self._path_at(s)
         speed_frac = np.clip(self.speed_at(t) / self.speed, 0.0, 1.0)
         k = np.arange(self.s.size)
-        post = np.stack([np.interp(t / DT, k, self.posture[:, i]) for i in range(4)], -1)
+        post = np.stack([np.interp(t / DT, k, self.posture[:, i])
+                         for i in range(self.posture.shape[1])], -1)
+        heading = heading + post[:, 4]  # turned on the spot while paused
         ankles, yaw, pitch = {}, {}, {}
         for side in (1, -1):
             ankles[side], yaw[side], pitch[side] = self._foot(s, side)
@@ -196,8 +205,8 @@ def _random_path(cfg: PeopleConfig, length: float, start: NDArray[np.float64],
     """A smooth random path of ``length`` metres that stays inside the capture area."""
     n = int(np.ceil(length / DS)) + 2
     half = np.asarray(cfg.area) / 2
-    # Curvature: white noise smoothed over ~2 m, so the path turns gently.
-    kernel = np.exp(-0.5 * (np.arange(-300, 301) * DS / 0.7) ** 2)
+    # Curvature: white noise smoothed over ~3 m, so the path turns gently.
+    kernel = np.exp(-0.5 * (np.arange(-300, 301) * DS / 1.2) ** 2)
     noise = rng.standard_normal(n + kernel.size)
     kappa = np.convolve(noise, kernel / np.sqrt(np.sum(kernel**2)), "same")[:n]
     kappa = (kappa * cfg.curviness).tolist()
@@ -205,14 +214,16 @@ def _random_path(cfg: PeopleConfig, length: float, start: NDArray[np.float64],
     head = np.empty(n)
     x, y = float(start[0]), float(start[1])
     h = float(rng.uniform(-np.pi, np.pi))
-    hx, hy = 0.8 * float(half[0]), 0.8 * float(half[1])
+    hx, hy = float(half[0]), float(half[1])
     # Sequential in arc length (the steering depends on the position), but cheap: a few
     # thousand scalar steps per person, independent of the number of cameras and frames.
     for i in range(n):
         pts[i, 0], pts[i, 1], head[i] = x, y, h
         turn = kappa[i]
-        if abs(x) > hx or abs(y) > hy:  # steer back towards the centre
-            turn += 1.2 * math.sin(math.atan2(-y, -x) - h)
+        out = max(abs(x) / hx, abs(y) / hy) - 0.7  # > 0 in the outer part of the area
+        if out > 0:  # steer back towards the centre, harder the farther out
+            d = (math.atan2(-y, -x) - h + math.pi) % (2 * math.pi) - math.pi
+            turn += min(out / 0.3, 1.0) * 1.5 * d
         h += turn * DS
         x += DS * math.cos(h)
         y += DS * math.sin(h)
@@ -238,7 +249,7 @@ def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
     """Arc length ``s`` and posture (M, 4) every DT seconds, plus (start, end, action) list."""
     m = int(np.ceil(duration / DT)) + 2
     v = np.zeros(m)
-    posture = np.zeros((m, 4))
+    posture = np.zeros((m, 5))
     actions: list[tuple[float, float, str]] = []
     t = 0.0 if cfg.periodic else rng.uniform(0, 1.0)
     # Bouts end in a pause with probability pause_prob, so the time between pauses is
@@ -247,6 +258,11 @@ def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
     while t < duration:
         walk = duration + 1 if cfg.periodic else min(rng.exponential(mean_walk) + 2 * RAMP,
                                                      duration + 1)
+        if walk < duration - t:
+            # A bout covers whole strides (the trapezoid speed profile walks speed * (walk -
+            # RAMP) metres), so stopping in double support hardly changes the speed.
+            n_strides = max(1, round((walk - RAMP) * speed / stride))
+            walk = n_strides * stride / speed + RAMP
         i0, i1 = int(t / DT), min(int((t + walk) / DT), m)
         tt = np.arange(i0, i1) * DT - t
         v[i0:i1] = speed * np.clip(np.minimum(tt, walk - tt) / RAMP, 0, 1)
@@ -256,14 +272,17 @@ def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
         t += walk
         if t < duration:
             pause = rng.uniform(*cfg.pause_range_s)
+            j0, j1 = int(t / DT), min(int((t + pause) / DT), m)
+            tt = np.arange(j0, j1) * DT - t
+            fade = np.clip(np.minimum(tt, pause - tt) / 0.8, 0, 1)
+            fade = fade * fade * (3 - 2 * fade)
             if cfg.actions and rng.random() < cfg.action_prob:
                 name = str(rng.choice(cfg.actions))
-                j0, j1 = int(t / DT), min(int((t + pause) / DT), m)
-                tt = np.arange(j0, j1) * DT - t
-                fade = np.clip(np.minimum(tt, pause - tt) / 0.8, 0, 1)
-                fade = fade * fade * (3 - 2 * fade)
-                posture[j0:j1] = fade[:, None] * np.asarray(ACTIONS[name])
+                posture[j0:j1, :4] = fade[:, None] * np.asarray(ACTIONS[name])
                 actions.append((t, t + pause, name))
+            if rng.random() < cfg.turn_prob:
+                yaw = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 90.0))
+                posture[j0:j1, 4] = fade * yaw
             t += pause
     s = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * DT)])
     s = _snap_stops(s, v, stride)

@@ -87,7 +87,7 @@ def plot_camera_view(scene: Scene, camera: str, ax: Axes, frame: int | None = No
     for slot, person in enumerate(s2p):
         if person == -2:
             continue
-        color = "r" if person == -1 else colors[person]
+        color = "k" if person == -1 else colors[person]
         for a, b in CANONICAL_BONES:
             pa, pb = kp[slot, CANONICAL_INDEX[a]], kp[slot, CANONICAL_INDEX[b]]
             if np.isfinite(pa[0]) and np.isfinite(pb[0]):
@@ -97,7 +97,7 @@ def plot_camera_view(scene: Scene, camera: str, ax: Axes, frame: int | None = No
     ax.set_ylim(1.05 * h, -0.05 * h)
     ax.set_aspect("equal")
     ax.set_title(f"{camera} frame {frame} ({w}x{h}, f={cam.focal:.0f} px): detections, "
-                 "true joints (x), false positives red", fontsize=8)
+                 "true joints (x), false positives black", fontsize=8)
 
 
 def plot_scene(scene: Scene, path: str | Path | None = None, camera: str | None = None,

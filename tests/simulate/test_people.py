@@ -87,7 +87,7 @@ def test_actions_change_the_posture():
             assert name == "sit"
             mid = np.array([(t0 + t1) / 2])
             x = p.joints(mid)[0]
-            if t1 - t0 > 2.0:  # long enough to sit down fully
+            if t1 - t0 > 2.0 and t1 < 30.0:  # long enough to sit down fully, within the scene
                 assert x[J["mid_hip"], 2] < 0.7 * p.body.standing_hip_height
                 sat += 1
     assert sat > 0
