@@ -131,6 +131,28 @@ class Scene:
         self._index(camera)
         return self._slots[camera]
 
+    def plane_camera(self, camera: str) -> tuple[Camera, NDArray[np.float64], NDArray[np.float64]]:
+        """The true camera in its OWN plane frame, as stage I returns it (for testing stage II).
+
+        The plane frame has z up (the ground normal), the camera centre at (0, 0, height) and
+        the optical axis, projected on the ground, along +x.
+
+        Returns
+        -------
+        camera : Camera
+            The camera expressed in its plane frame (same intrinsics and clock).
+        R, t : ndarray, shapes (3, 3) and (3,)
+            ``world_from_plane``: ``x_world = R @ x_plane + t``.
+        """
+        cam = self.truth[camera]
+        c = cam.center
+        axis = cam.R[2]  # optical axis in world coordinates
+        yaw = float(np.arctan2(axis[1], axis[0]))
+        R = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0],
+                      [0.0, 0.0, 1.0]])
+        t = np.array([c[0], c[1], 0.0])
+        return cam.with_(R=cam.R @ R, t=cam.R @ t + cam.t), R, t
+
     def save(self, outdir: str | Path, format: str = "native-json") -> Path:
         """Write the detections and the ground truth to ``outdir``; returns ``outdir``.
 

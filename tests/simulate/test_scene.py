@@ -221,3 +221,15 @@ def test_phones_have_portrait_landscape_and_distortion():
 def test_scene_config_rejects_unknown_fields():
     with pytest.raises(ValueError):
         SceneConfig(people={"n_persons": 3, "legs": 3})
+
+
+def test_plane_camera_is_the_camera_in_its_own_ground_frame(clean):
+    for name in clean.camera_names:
+        pc, R, t = clean.plane_camera(name)
+        cam = clean.truth[name]
+        np.testing.assert_allclose(pc.center[:2], 0.0, atol=1e-9)
+        assert pc.center[2] == pytest.approx(cam.center[2])
+        axis = pc.R[2]
+        assert abs(axis[1]) < 1e-9 and axis[0] > 0  # optical axis projects onto +x
+        x = clean.joints3d(name)[::40]
+        np.testing.assert_allclose(pc.project((x - t) @ R), cam.project(x), atol=1e-6)
