@@ -1,0 +1,111 @@
+"""``cascalib calibrate``: the whole cascade on one session, written to an output folder."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from cascalib.cli.progress import StageProgress
+
+EXIT_REJECTED = 1
+FORMATS = ("json", "toml", "opencv", "colmap", "easymocap")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "calibrate", help="calibrate and synchronise cameras from keypoint tracks",
+        description="Each INPUT is one camera (a keypoint file, or a folder of per-frame JSON "
+                    "files; the camera name is the file or folder name), a multi-camera file "
+                    "(caliscope CSV), or one session manifest (TOML/JSON).")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", type=Path)
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="OUTDIR",
+                   help="output folder (calibration.json, report.html, poses/)")
+    add_camera_value_flags(p)
+    p.add_argument("--height", type=float, default=None,
+                   help="mean standing height of the people in metres (default 1.70)")
+    p.add_argument("--known-intrinsics", type=Path, metavar="FILE",
+                   help="calibration file (any supported format) whose cameras' intrinsics are "
+                        "known and kept, matched by camera name")
+    p.add_argument("--synchronized", action="store_true",
+                   help="the cameras are already synchronised: estimate geometry only")
+    p.add_argument("--formats", default="json", metavar="LIST",
+                   help=f"comma-separated calibration formats to write ({','.join(FORMATS)})")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--reference-camera", metavar="NAME", help="camera defining world and clock")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="full configuration (JSON/TOML, keys of CalibrationConfig); flags win")
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--json", action="store_true",
+                   help="print a machine-readable summary on stdout")
+    p.set_defaults(run=run)
+
+
+def add_camera_value_flags(p: argparse.ArgumentParser) -> None:
+    """``--image-size`` / ``--fps`` / ``--skeleton``, shared with ``cascalib triangulate``."""
+    p.add_argument("--image-size", action="append", metavar="WxH|NAME=WxH",
+                   help="image size for every camera (1920x1080) or, repeated, NAME=WxH for one")
+    p.add_argument("--fps", action="append", metavar="F|NAME=F",
+                   help="frame rate for every camera (30) or, repeated, NAME=F for one")
+    p.add_argument("--skeleton", help="keypoint skeleton where the file is ambiguous "
+                                      "(coco17, body25, body25b, halpe26, ...)")
+
+
+def build_config(args: argparse.Namespace):  # noqa: ANN201 - CalibrationConfig
+    from cascalib.config import CalibrationConfig, KnownIntrinsics
+    from cascalib.errors import InputError
+    from cascalib.formats import load_calibration
+
+    base = (CalibrationConfig.from_file(args.config).model_dump() if args.config else {})
+    for key in ("height", "seed", "reference_camera"):
+        if getattr(args, key) is not None:
+            base[key] = getattr(args, key)
+    if args.synchronized:
+        base["synchronized"] = True
+    if args.known_intrinsics is not None:
+        known = load_calibration(args.known_intrinsics)
+        base["known_intrinsics"] = {c.name: KnownIntrinsics(K=c.K.tolist(), dist=c.dist.tolist())
+                                    for c in known}
+    try:
+        return CalibrationConfig.model_validate(base)
+    except ValueError as exc:
+        raise InputError(f"invalid configuration: {exc}", file=str(args.config or "")) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from cascalib.errors import InputError
+    from cascalib.pipeline import calibrate
+    from cascalib.session import load_session
+
+    formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise InputError(f"unknown format(s) {bad}; choose from {','.join(FORMATS)}",
+                         field="formats")
+    config = build_config(args)
+    tracks = load_session(args.inputs, image_size=args.image_size, fps=args.fps,
+                          skeleton=args.skeleton)
+    quiet = args.quiet or args.json
+    with StageProgress(quiet=quiet) as progress:
+        result = calibrate(tracks, config, progress=progress)
+        progress("save", 0.0)
+        written = result.save(args.output, formats=formats, report=not args.no_report)
+        progress("save", 1.0)
+    summary = result.summary() | {"outputs": {k: str(v) for k, v in written.items()}}
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    elif not args.quiet:
+        for cam in summary["cameras"]:
+            c = cam["center_m"]
+            print(f"{cam['name']:>10s}  f={cam['focal_px']:8.1f} px  "
+                  f"C=({c[0]:6.2f}, {c[1]:6.2f}, {c[2]:5.2f}) m  offset={cam['time_offset']:8.2f}"
+                  f"  rate={cam['time_rate']:.5f}  {cam['verdict']}: {cam['reason']}")
+        print(f"written to {args.output}/ (calibration.json, report.html, poses/)")
+    if not result.accepted:
+        failed = [c["name"] for c in summary["cameras"] if c["verdict"] == "failed"]
+        print(f"cascalib calibrate: calibration rejected by the quality check: camera(s) "
+              f"{', '.join(failed)} failed (see report.html)", file=sys.stderr)
+        return EXIT_REJECTED
+    return 0

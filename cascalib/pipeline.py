@@ -1,0 +1,244 @@
+"""The whole cascade: tracks -> single view -> sync and ground alignment -> bundle adjustment.
+
+:func:`calibrate` calls one typed function per stage, in cascade order, and keeps every stage's
+result on the returned :class:`CalibrationResult` for inspection. Expected failures are
+:class:`~cascalib.errors.EstimationFailed` / :class:`~cascalib.errors.RefinementFailed` with a
+message that says which camera and why; progress is reported through an injected callback
+(``progress(stage, fraction)``), the library owns no progress bar.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cascalib.calibration import Calibration
+from cascalib.camera import Camera
+from cascalib.config import CalibrationConfig
+from cascalib.errors import EstimationFailed, InputError
+from cascalib.poses import Poses3D
+from cascalib.stages.align import AlignmentResult, align_cameras
+from cascalib.stages.refine import RefineResult, refine
+from cascalib.stages.single_view import calibrate_single_view
+from cascalib.stages.single_view_result import SingleViewResult
+from cascalib.tracks import Tracks
+
+__all__ = ["calibrate", "CalibrationResult", "STAGES", "Progress"]
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[str, float], None]
+
+#: Stage names reported to ``progress``, in order, with their rough share of the run time.
+STAGES: tuple[tuple[str, float], ...] = (
+    ("single_view", 0.15), ("sync", 0.25), ("refine", 0.55), ("triangulate", 0.05),
+)
+
+
+@dataclass(eq=False)
+class CalibrationResult:
+    """Everything a calibration run produced.
+
+    Attributes
+    ----------
+    calibration : Calibration
+        The final cameras (world z up, ground z = 0, metres) with time offsets and rates, and
+        the quality report in ``calibration.quality``.
+    poses : Poses3D
+        3D poses of every reference frame where a person is seen by two cameras.
+    single_view : dict of str to SingleViewResult
+        Stage I per camera.
+    alignment : AlignmentResult
+        Stages II-IV (sync cost curves, ground trajectories, pairwise results).
+    refinement : RefineResult
+        Stage V (solver statistics, association, per-camera quality).
+    config : CalibrationConfig
+        The configuration used.
+    timings : dict of str to float
+        Seconds spent per stage.
+    """
+
+    calibration: Calibration
+    poses: Poses3D
+    single_view: dict[str, SingleViewResult]
+    alignment: AlignmentResult
+    refinement: RefineResult
+    config: CalibrationConfig
+    tracks: list[Tracks] = field(repr=False, default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def accepted(self) -> bool:
+        """True when no camera's verdict is ``failed``."""
+        return all(q.verdict != "failed" for q in self.refinement.quality.values())
+
+    def summary(self) -> dict[str, Any]:
+        """Machine-readable summary (the CLI's ``--json``)."""
+        cams = []
+        for cam in self.calibration:
+            q = self.refinement.quality.get(cam.name)
+            cams.append({
+                "name": cam.name, "focal_px": cam.focal,
+                "principal_point": cam.principal_point.tolist(),
+                "center_m": cam.center.tolist(), "time_offset": cam.time_offset,
+                "time_rate": cam.time_rate,
+                "verdict": q.verdict if q else None, "reason": q.reason if q else None,
+                "reprojection_median_px": q.reprojection_median_px if q else None,
+            })
+        return {"ok": self.accepted, "reference_camera": self.calibration.reference_camera,
+                "cameras": cams, "timings_s": self.timings}
+
+    def save(self, outdir: str | Path, formats: Sequence[str] = ("json",),
+             report: bool = True) -> dict[str, Path]:
+        """Write ``calibration.json`` (+ the other requested calibration formats), the 3D poses
+        and ``report.html`` with its PNG plots into ``outdir``.
+
+        Returns
+        -------
+        dict of str to Path
+            What was written, by kind.
+        """
+        from cascalib.formats import save_calibration
+
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        written: dict[str, Path] = {}
+        for fmt in dict.fromkeys(["json", *formats]):
+            paths = save_calibration(self.calibration, _calibration_path(outdir, fmt), fmt)
+            written[f"calibration:{fmt}"] = Path(paths[0])
+        for p in self.poses.save(outdir / "poses", formats=("npz", "json", "trc", "c3d")):
+            written[f"poses:{p.name}"] = p
+        if report:
+            from cascalib.report import write_report
+
+            written["report"] = write_report(self, outdir)
+        return written
+
+
+def _calibration_path(outdir: Path, fmt: str) -> Path:
+    return {"json": outdir / "calibration.json", "toml": outdir / "calibration.toml",
+            "opencv": outdir / "calibration_opencv.yml", "colmap": outdir / "colmap",
+            "easymocap": outdir / "easymocap"}.get(fmt, outdir / f"calibration.{fmt}")
+
+
+def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:
+    if len(tracks) < 2:
+        raise InputError(f"need at least two cameras, got {len(tracks)}", field="cameras")
+    names = [t.camera for t in tracks]
+    for t in tracks:
+        t.require_image_size()
+        if t.fps is None and t.timestamps is None:
+            raise InputError("frame rate unknown: give --fps (or fps in the options)",
+                             file=t.source, camera=t.camera, field="fps")
+    if cfg.reference_camera is not None and cfg.reference_camera not in names:
+        raise InputError(f"reference camera {cfg.reference_camera!r} is not one of {names}",
+                         field="reference_camera")
+    unknown = sorted(set(cfg.known_intrinsics) - set(names))
+    if unknown:
+        raise InputError(f"known intrinsics given for unknown cameras {unknown}",
+                         field="known_intrinsics")
+
+
+def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.random.Generator,
+                 progress: Progress) -> dict[str, SingleViewResult]:
+    results: dict[str, SingleViewResult] = {}
+    failures: list[str] = []
+    for i, t in enumerate(tracks):
+        try:
+            results[t.camera] = calibrate_single_view(t, cfg.single_view, height=cfg.height,
+                                                      rng=rng)
+            log.info("stage I %s", results[t.camera].summary())
+        except EstimationFailed as exc:
+            failures.append(str(exc))
+        progress("single_view", (i + 1) / len(tracks))
+    if failures:
+        raise EstimationFailed("single-view calibration failed for "
+                               f"{len(failures)} of {len(tracks)} cameras:\n  "
+                               + "\n  ".join(failures), field="single_view")
+    return results
+
+
+def _apply_known(cameras: list[Camera], cfg: CalibrationConfig) -> list[Camera]:
+    out = []
+    for cam in cameras:
+        k = cfg.known_intrinsics.get(cam.name)
+        out.append(cam if k is None else cam.with_(K=np.array(k.K), dist=np.array(k.dist)))
+    return out
+
+
+def _synchronized(calib: Calibration, tracks: Sequence[Tracks]) -> Calibration:
+    """Known synchronisation: offset 0, rate = reference fps / camera fps."""
+    ref = next(t for t in tracks if t.camera == calib.reference_camera)
+    fps_ref = ref.fps or 1.0
+    cams = [c.with_(time_offset=0.0, time_rate=fps_ref / (t.fps or fps_ref))
+            for c, t in zip(calib.cameras, tracks, strict=True)]
+    return Calibration(cams, calib.reference_camera, dict(calib.quality), calib.world)
+
+
+def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
+              progress: Progress | None = None) -> CalibrationResult:
+    """Calibrate and synchronise a multi-camera rig from the people it sees.
+
+    Parameters
+    ----------
+    tracks : sequence of Tracks
+        One per camera, with image size and frame rate (or timestamps) known.
+    config : CalibrationConfig, optional
+        Every parameter; defaults throughout.
+    progress : callable, optional
+        ``progress(stage, fraction)`` with ``stage`` one of :data:`STAGES`' names.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    InputError
+        Unusable input (fewer than two cameras, unknown image size or frame rate ...).
+    EstimationFailed, RefinementFailed
+        A stage could not produce a trustworthy result; the message names the camera and why.
+    """
+    cfg = config or CalibrationConfig()
+    report = progress or (lambda stage, fraction: None)
+    tracks = list(tracks)
+    if cfg.reference_camera is not None:  # the reference camera goes first
+        tracks.sort(key=lambda t: t.camera != cfg.reference_camera)
+    _check_inputs(tracks, cfg)
+    rng = np.random.default_rng(cfg.seed)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    single = _single_view(tracks, cfg, rng, report)
+    timings["single_view"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
+    report("sync", 0.0)
+    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng)
+    initial = aligned.calibration
+    if cfg.synchronized:
+        initial = _synchronized(initial, tracks)
+    report("sync", 1.0)
+    timings["sync"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    report("refine", 0.0)
+    rcfg = cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized else cfg.refine
+    refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng)
+    report("refine", 1.0)
+    timings["refine"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    fps_ref = float(tracks[0].fps or 1.0 / np.nanmedian(np.diff(tracks[0].frame_times())))
+    poses = Poses3D(refined.poses3d, refined.times, fps_ref, refined.track_ids)
+    report("triangulate", 1.0)
+    timings["triangulate"] = time.perf_counter() - t0
+    return CalibrationResult(refined.calibration, poses, single, aligned, refined, cfg,
+                             tracks, timings)

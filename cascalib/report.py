@@ -1,0 +1,158 @@
+"""The self-contained ``report.html`` of a calibration run, with its PNG plots.
+
+One page a lab member can read without the code: a verdict, one table row per camera
+(intrinsics, position, time offset, uncertainties, verdict and reason), the plots of every stage
+and a glossary of every number. Plots are embedded as base64 PNG (the HTML file alone is enough)
+and also written next to it (``report_*.png``).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import importlib
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from cascalib.plots import (
+    plot_birdseye,
+    plot_reprojection_histograms,
+    plot_rig_3d,
+    save_figure,
+)
+
+if TYPE_CHECKING:
+    from cascalib.pipeline import CalibrationResult
+
+__all__ = ["write_report", "reprojection_errors"]
+
+log = logging.getLogger(__name__)
+
+GLOSSARY = (
+    ("focal f", "Focal length in pixels (fx = fy). With the image width W, the horizontal field "
+                "of view is 2 atan(W / 2f)."),
+    ("principal point c", "Pixel where the optical axis meets the image; near the image centre."),
+    ("distortion", "OpenCV radial (k1, k2, k3) and tangential (p1, p2) lens distortion."),
+    ("position", "Camera centre in the world frame: x, y on the ground, z = height above the "
+                 "ground (metres). The world's origin and heading are the reference camera's."),
+    ("time offset / rate", "Frame k of the camera shows the scene at reference-camera frame "
+                           "rate * k + offset (reference camera: 0 and 1)."),
+    ("reprojection median / p90", "Distance in pixels between each detected keypoint and the "
+                                  "projection of its triangulated 3D joint: median and 90th "
+                                  "percentile over the inliers."),
+    ("inlier rate", "Share of the camera's associated keypoints within the inlier threshold."),
+    ("sigma (1-s.d.)", "Uncertainty of focal, rotation and position from the bundle adjustment's "
+                       "marginal covariances, scaled by the measured residual spread and a "
+                       "factor calibrated on simulated rigs against true errors."),
+    ("verdict", "accepted: all checks passed; suspicious: a check failed (the reason says "
+                "which), use with care; failed: do not use this camera."),
+)
+
+
+def _png(fig: Figure, path: Path) -> str:
+    save_figure(fig, path)
+    return base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def reprojection_errors(result: CalibrationResult) -> dict[str, np.ndarray]:
+    """Per camera, the reprojection errors (px) of its associated keypoints."""
+    from cascalib.stages.refine import triangulate_groups
+
+    assoc = result.refinement.association
+    joints = np.arange(assoc.obs.shape[2])
+    _, err = triangulate_groups(assoc, list(result.calibration.cameras), joints)
+    return {cam.name: err[:, c].ravel() for c, cam in enumerate(result.calibration)}
+
+
+def _camera_table(result: CalibrationResult) -> str:
+    head = ("camera", "image", "f [px]", "&sigma;f", "c [px]", "k1, k2, p1, p2, k3",
+            "position x, y, z [m]", "&sigma; rot [deg] / pos [cm]", "offset [frames]", "rate",
+            "reproj. median / p90 [px]", "inliers", "verdict")
+    rows = []
+    for cam in result.calibration:
+        q = result.refinement.quality.get(cam.name)
+        c = cam.center
+        cells = (
+            cam.name, f"{cam.image_size[0]}x{cam.image_size[1]}", f"{cam.focal:.1f}",
+            f"{q.sigma_focal_px:.1f}" if q else "", f"{cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f}",
+            ", ".join(f"{v:.3g}" for v in cam.dist), f"{c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}",
+            f"{q.sigma_rotation_deg:.2f} / {100 * q.sigma_position_m:.1f}" if q else "",
+            f"{cam.time_offset:.2f}", f"{cam.time_rate:.5f}",
+            f"{q.reprojection_median_px:.2f} / {q.reprojection_p90_px:.2f}" if q else "",
+            f"{q.inlier_rate:.0%}" if q else "",
+            f"<b class='{q.verdict}'>{q.verdict}</b><br><small>{html.escape(q.reason)}</small>"
+            if q else "")
+        rows.append("<tr>" + "".join(f"<td>{v}</td>" for v in cells) + "</tr>")
+    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows)
+            + "</table>")
+
+
+def _stage_figures(result: CalibrationResult) -> list[tuple[str, str, Figure]]:
+    """(section, caption, figure) for every plot, in reading order."""
+    figs: list[tuple[str, str, Figure]] = []
+    sv_plot = _optional("cascalib.stages.single_view_plot", "plot_single_view")
+    if sv_plot is not None:
+        for name, sv in result.single_view.items():
+            figs.append(("Stage I: single-view ground plane", f"{name}: 1 m ground grid and "
+                         "inlier (green) / outlier (red) ankle-to-shoulder segments", sv_plot(sv)))
+    sync_plot = _optional("cascalib.stages.align_plot", "plot_sync_curves")
+    if sync_plot is not None:
+        figs.append(("Stages II-IV: synchronisation", "Sync cost per camera pair with the "
+                     "chosen offset", sync_plot(result.alignment)))
+    figs.append(("Cameras and trajectories", "Bird's-eye view of the final cameras and the "
+                 "triangulated feet", plot_birdseye(result.calibration, result.poses.joints)))
+    figs.append(("Cameras and trajectories", "3D view of the cameras and a few poses",
+                 plot_rig_3d(result.calibration, result.poses.joints)))
+    figs.append(("Reprojection errors", "Per camera, after the bundle adjustment",
+                 plot_reprojection_histograms(reprojection_errors(result))))
+    return figs
+
+
+def _optional(module: str, name: str):  # noqa: ANN202 - returns a plot function or None
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        return None
+
+
+_CSS = """
+body{font-family:sans-serif;margin:2em;max-width:1400px}table{border-collapse:collapse}
+td,th{border:1px solid #ccc;padding:4px 6px;font-size:13px;vertical-align:top}
+th{background:#f0f0f0}.accepted{color:#080}.suspicious{color:#b60}.failed{color:#c00}
+img{max-width:100%;border:1px solid #ddd;margin:6px 0}figure{margin:0 0 1.5em 0}
+"""
+
+
+def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
+    """Write ``report.html`` and its ``report_*.png`` plots into ``outdir``; return its path."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    verdicts = [q.verdict for q in result.refinement.quality.values()]
+    overall = "failed" if "failed" in verdicts else (
+        "suspicious" if "suspicious" in verdicts else "accepted")
+    parts = [f"<html><head><meta charset='utf-8'><title>cascalib report</title>"
+             f"<style>{_CSS}</style></head><body><h1>Calibration report</h1>",
+             f"<p>Overall verdict: <b class='{overall}'>{overall}</b> &middot; "
+             f"{len(result.calibration)} cameras &middot; reference camera "
+             f"<b>{html.escape(str(result.calibration.reference_camera))}</b> &middot; "
+             f"person height prior {result.config.height:.2f} m &middot; run time "
+             f"{sum(result.timings.values()):.1f} s</p>",
+             "<h2>Cameras</h2>", _camera_table(result)]
+    section = None
+    for i, (sec, caption, fig) in enumerate(_stage_figures(result)):
+        if sec != section:
+            parts.append(f"<h2>{html.escape(sec)}</h2>")
+            section = sec
+        data = _png(fig, outdir / f"report_{i:02d}.png")
+        parts.append(f"<figure><img src='data:image/png;base64,{data}'>"
+                     f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+    parts.append("<h2>What the numbers mean</h2><dl>")
+    parts += [f"<dt><b>{k}</b></dt><dd>{html.escape(v)}</dd>" for k, v in GLOSSARY]
+    parts.append("</dl></body></html>")
+    path = outdir / "report.html"
+    path.write_text("\n".join(parts))
+    return path
