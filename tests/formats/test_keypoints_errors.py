@@ -162,7 +162,7 @@ CASES = {
         lambda t: _write(t, "camF.json", json.dumps(
             {"schema": "cascalib/tracks@1", "camera": "camF", "skeleton": "coco17",
              "shape": [2, 1, 17], "keypoints": [[[[1, 2, 1]] * 17]]})),
-        {}, "camF.json", "camF", None, "keypoints", r"shape \(17, 3\) does not match"),
+        {}, "camF.json", "camF", None, "keypoints", "nested lists of 2 frames x 1 persons x 17"),
     "native future schema": (
         lambda t: _write(t, "camF.json", json.dumps({"schema": "cascalib/tracks@9"})),
         {}, "camF.json", None, None, "schema", "unsupported schema 'cascalib/tracks@9'"),

@@ -8,6 +8,7 @@ joint) and lets every error name the first offending frame.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import re
@@ -90,36 +91,38 @@ def resolve_fps(from_file: float | None, given: FpsArg, *, camera: str, file: Pa
 
 
 def as_records(rows: list[Any], frames: NDArray[np.int64], *, n_joints: int | None,
-               width: int, file: Path, camera: str, field: str) -> NDArray[np.float64]:
-    """Stack per-detection keypoint lists into an (N, J, 3) float array, checking joint counts.
+               width: int, flat: bool, file: Path, camera: str, field: str
+               ) -> NDArray[np.float64]:
+    """Stack per-detection keypoint lists into an (N, J, width) float array.
 
     Parameters
     ----------
     rows : list
-        Per detection, either a flat list ``[x, y, c] * J`` (``width == 0``) or a ``(J, width)``
-        nested list.
+        Per detection, a flat list of ``J * width`` numbers (``flat``, e.g. OpenPose's
+        ``[x, y, c] * J``) or a nested ``(J, width)`` list (mmpose's ``[[x, y], ...]``).
     frames : ndarray of int, shape (N,)
         Frame of each detection, for messages.
     n_joints : int, optional
         Expected joint count (from a given skeleton); else the first detection's count.
     width : int
-        0 for flat triples; else the number of values per joint (2 or 3).
+        Number of values per joint.
 
     Raises
     ------
     InputError
-        Naming the first detection's frame whose joint count differs or whose values are not
-        numbers.
+        Naming the first detection's frame whose joint count or joint width differs or whose
+        values are not numbers. ``null`` values become NaN (rejected by :func:`check_values`).
     """
     lengths = np.fromiter((len(r) if isinstance(r, list) else -1 for r in rows), np.int64,
                           len(rows))
-    if width == 0:
-        bad = lengths % 3 != 0
+    if flat and width > 1:
+        bad = lengths % width != 0
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"{lengths[i]} values is not a whole number of (x, y, c) triples",
-                             file=str(file), camera=camera, frame=int(frames[i]), field=field)
-        lengths = lengths // 3
+            raise InputError(f"{lengths[i]} values is not a whole number of joints of {width}"
+                             " values", file=str(file), camera=camera, frame=int(frames[i]),
+                             field=field)
+        lengths = np.where(lengths < 0, -1, lengths // width)
     expect = n_joints if n_joints is not None else int(lengths[0])
     bad = lengths != expect
     if bad.any():
@@ -127,19 +130,31 @@ def as_records(rows: list[Any], frames: NDArray[np.int64], *, n_joints: int | No
         got = "no keypoint list" if lengths[i] < 0 else f"{lengths[i]} joints"
         raise InputError(f"expected {expect} joints, got {got}", file=str(file), camera=camera,
                          frame=int(frames[i]), field=field)
+    where = {"file": str(file), "camera": camera, "field": field}
+    if not flat:
+        try:  # joint widths, counted at C speed
+            widths = np.fromiter(map(len, itertools.chain.from_iterable(rows)), np.int64,
+                                 len(rows) * expect).reshape(len(rows), expect)
+        except TypeError:  # a joint that is not a list
+            widths = np.array([[len(j) if isinstance(j, list) else -1 for j in r]
+                               for r in rows])
+        bad = (widths != width).any(-1)
+        if bad.any():
+            raise InputError(f"each joint needs {width} values", frame=int(frames[np.argmax(bad)]),
+                             **where)
+        try:  # fast path: no nested-sequence discovery
+            chain = itertools.chain.from_iterable(itertools.chain.from_iterable(rows))
+            flat_values = np.fromiter(chain, np.float64, len(rows) * expect * width)
+            return flat_values.reshape(len(rows), expect, width)
+        except (TypeError, ValueError):
+            pass  # null or text somewhere: the slow path below turns null into NaN or names it
     try:
         arr = np.array(rows, dtype=np.float64)
     except (TypeError, ValueError):
         i = _first_non_numeric(rows)
-        raise InputError("keypoint values must be numbers", file=str(file), camera=camera,
-                         frame=int(frames[i]), field=field) from None
-    if width == 0:
-        return arr.reshape(len(rows), expect, 3)
-    if arr.ndim != 3 or arr.shape[2] != width:
-        i = _first_bad_width(rows, width)
-        raise InputError(f"each joint needs {width} values", file=str(file), camera=camera,
-                         frame=int(frames[i]), field=field)
-    return arr
+        raise InputError("keypoint values must be numbers", frame=int(frames[i]),
+                         **where) from None
+    return arr.reshape(len(rows), expect, width)
 
 
 def _first_non_numeric(rows: list[Any]) -> int:
@@ -147,13 +162,6 @@ def _first_non_numeric(rows: list[Any]) -> int:
         try:
             np.array(r, dtype=np.float64)
         except (TypeError, ValueError):
-            return i
-    return 0
-
-
-def _first_bad_width(rows: list[Any], width: int) -> int:
-    for i, r in enumerate(rows):
-        if any(not isinstance(v, list) or len(v) != width for v in r):
             return i
     return 0
 
@@ -306,8 +314,9 @@ def json_default(obj: Any) -> Any:
 def write_json(obj: Any, path: Path) -> None:
     """Write compact JSON (no NaN tokens: they are not JSON)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(obj, fh, allow_nan=False, default=json_default, separators=(",", ":"))
+    # json.dumps, not json.dump: only the one-shot encoder uses the C accelerator.
+    text = json.dumps(obj, allow_nan=False, default=json_default, separators=(",", ":"))
+    path.write_text(text, encoding="utf-8")
 
 
 def frame_numbers(values: list[Any], *, file: Path, camera: str, field: str

@@ -68,7 +68,7 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
                              field="frame")
     kp = c.as_records([r["keypoints"] for r in info], frames,
                       n_joints=c.given_joints(skeleton, file=path, camera=camera), width=3,
-                      file=path, camera=camera, field="keypoints")
+                      flat=False, file=path, camera=camera, field="keypoints")
     c.check_values(kp, frames, file=path, camera=camera)
     kp = c.zeros_to_nan(kp)
     tid = c.track_numbers([r.get("track_id") for r in info], frames, file=path, camera=camera,

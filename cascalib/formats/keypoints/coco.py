@@ -69,8 +69,8 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
     frames = c.frame_numbers([r["image_id"] for r in obj], file=path, camera=camera,
                              field="image_id")
     kp = c.as_records([r["keypoints"] for r in obj], frames,
-                      n_joints=c.given_joints(skeleton, file=path, camera=camera), width=0,
-                      file=path, camera=camera, field="keypoints")
+                      n_joints=c.given_joints(skeleton, file=path, camera=camera), width=3,
+                      flat=True, file=path, camera=camera, field="keypoints")
     c.check_values(kp, frames, file=path, camera=camera)
     kp = _annotation_flags(kp, obj, frames, path, camera)
     tid = c.track_numbers([r.get("track_id") for r in obj], frames, file=path, camera=camera,

@@ -106,9 +106,8 @@ def _scores(scores: list[Any], frames: np.ndarray, n: int, path: Path, camera: s
             ) -> np.ndarray:
     if all(s is None for s in scores):
         return np.ones((len(scores), n))
-    rows = [[[v] for v in s] if isinstance(s, list) else s for s in scores]
-    return c.as_records(rows, frames, n_joints=n, width=1, file=path, camera=camera,
-                        field="keypoint_scores")[..., 0]
+    return c.as_records(scores, frames, n_joints=n, width=1, flat=True, file=path,
+                        camera=camera, field="keypoint_scores")[..., 0]
 
 
 def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | None = None,
@@ -121,8 +120,8 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
     first = kps[0][0] if kps[0] else None
     width = len(first) if isinstance(first, list) and len(first) in (2, 3) else 2
     n_given = c.given_joints(skeleton, file=path, camera=camera)
-    xy = c.as_records(kps, frames, n_joints=n_given, width=width, file=path, camera=camera,
-                      field="keypoints")
+    xy = c.as_records(kps, frames, n_joints=n_given, width=width, flat=False, file=path,
+                      camera=camera, field="keypoints")
     kp = np.empty(xy.shape[:2] + (3,))
     kp[..., :2] = xy[..., :2]
     kp[..., 2] = xy[..., 2] if width == 3 else _scores(scores, frames, xy.shape[1], path, camera)

@@ -26,6 +26,7 @@ are written as lists). ``source`` is not stored: it is the path the tracks are r
 
 from __future__ import annotations
 
+import itertools
 import json
 import zipfile
 from pathlib import Path
@@ -133,15 +134,22 @@ def _keypoints(obj: dict[str, Any], shape: tuple[int, ...], path: Path, camera: 
                ) -> NDArray[np.float64]:
     """Nested lists with ``null`` joints -> (F, P, J, 3) with NaN."""
     raw = obj.get("keypoints")
+    n_f, n_p, n_j = shape
+    nan3 = (np.nan, np.nan, np.nan)
+    bad = InputError(f"'keypoints' must be nested lists of {n_f} frames x {n_p} persons x "
+                     f"{n_j} joints, each [x, y, c] or null ('shape' field)", file=str(path),
+                     camera=camera, field="keypoints")
     try:
-        flat = [j if j is not None else (None, None, None)
-                for fr in raw for pe in fr for j in pe]
-    except TypeError:
-        raise InputError("'keypoints' must be nested lists frames > persons > joints",
-                         file=str(path), camera=camera, field="keypoints") from None
-    arr = _array(flat, (shape[0] * shape[1] * shape[2], 3), np.float64, path=path,
-                 camera=camera, name="keypoints")
-    return arr.reshape(shape + (3,))
+        ok = len(raw) == n_f and all(len(fr) == n_p and all(len(pe) == n_j for pe in fr)
+                                     for fr in raw)
+        joints = [nan3 if j is None else j for fr in raw for pe in fr for j in pe]
+        ok = ok and all(len(j) == 3 for j in joints)
+        if not ok:
+            raise bad
+        flat = np.fromiter(itertools.chain.from_iterable(joints), np.float64, n_f * n_p * n_j * 3)
+    except (TypeError, ValueError):
+        raise bad from None
+    return flat.reshape(shape + (3,))
 
 
 def read_native_json(path: str | Path, *, camera: str | None = None, skeleton: Any = None,

@@ -19,6 +19,7 @@ rate nor timestamps.
 
 from __future__ import annotations
 
+import json
 import logging
 import re
 from collections import Counter
@@ -151,8 +152,8 @@ def _build(rows: list[Any], frames: np.ndarray, ids: list[Any], where: list[Path
     c.require_records(len(rows), file=path, camera=camera, field="people")
     sk_joints = c.given_joints(skeleton, file=path, camera=camera)
     try:
-        kp = c.as_records(rows, frames, n_joints=sk_joints, width=0, file=path, camera=camera,
-                          field="pose_keypoints_2d")
+        kp = c.as_records(rows, frames, n_joints=sk_joints, width=3, flat=True, file=path,
+                          camera=camera, field="pose_keypoints_2d")
         c.check_values(kp, frames, file=path, camera=camera, field="pose_keypoints_2d")
     except InputError as exc:
         # Name the very file of the bad record rather than the folder.
@@ -194,6 +195,7 @@ def write_openpose(tracks: Tracks, folder: str | Path) -> list[Path]:
                    "pose_keypoints_2d": kp[f, p].ravel().tolist()}
                   for p in np.flatnonzero(present[f])]
         fp = folder / f"{tracks.camera}_{f:012d}_keypoints.json"
-        c.write_json({"version": 1.3, "people": people}, fp)
+        fp.write_text(json.dumps({"version": 1.3, "people": people}, allow_nan=False),
+                      encoding="utf-8")
         out.append(fp)
     return out
