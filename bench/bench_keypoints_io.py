@@ -64,7 +64,7 @@ def main() -> None:
             t = scene(args.frames, n_p, SKELETON.get(fmt, "halpe26"), rng)
             path = Path(tmp) / f"cam0_{fmt}{SUFFIX[fmt]}"
             w = timed(lambda t=t, path=path, fmt=fmt: write_tracks(t, path, format=fmt), 1)
-            r = timed(lambda path=path: read_tracks_many(path, skeleton=t.skeleton))
+            r = timed(lambda t=t, path=path: read_tracks_many(path, skeleton=t.skeleton))
             size = sum(f.stat().st_size for f in path.glob("*")) if path.is_dir() \
                 else path.stat().st_size
             print(f"{fmt:14s} {args.frames:6d} {n_p:7d} {t.n_joints:6d} {w:8.3f} {r:7.3f} "
