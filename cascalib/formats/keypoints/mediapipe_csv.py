@@ -174,8 +174,8 @@ def read_mediapipe_csv(path: str | Path, *, camera: CameraArg = None,
         frame and field.
     """
     path = Path(path)
-    if skeleton is not None and c.pick_skeleton(skeleton, np.zeros((1, _N_BODY, 3)), file=path,
-                                                camera="*").name != "blazepose33":
+    if skeleton is not None and c.named_skeleton(skeleton, file=path,
+                                                 camera=None).name != "blazepose33":
         raise InputError("caliscope CSV point ids are BlazePose-33", file=str(path),
                          field="skeleton")
     d = _load(path)
