@@ -129,13 +129,15 @@ def _check_inputs(tracks: list[Tracks], cams: list[Camera], reference: str | int
 
 
 def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) -> GroundTracks:
-    per_frame = cfg.max_speed / (fps or 30.0)
+    rate = fps or 30.0
     return ground_trajectories(
         tracks, cam, foot_height=cfg.foot_height, max_range=cfg.max_range,
         min_confidence=cfg.min_confidence, dbscan_eps=cfg.dbscan_eps,
         dbscan_min_samples=cfg.dbscan_min_samples,
-        dbscan_min_cluster_fraction=cfg.dbscan_min_cluster_fraction, max_step=per_frame,
-        min_length=cfg.min_tracklet_frames, jump_threshold=cfg.jump_threshold)
+        dbscan_min_cluster_fraction=cfg.dbscan_min_cluster_fraction,
+        max_step=cfg.max_speed / rate, max_gap=max(1, int(round(cfg.max_gap_seconds * rate))),
+        min_length=cfg.min_tracklet_frames, jump_threshold=cfg.jump_threshold,
+        link_speed=cfg.link_speed / rate)
 
 
 def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
@@ -150,14 +152,19 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
         min_overlap=max(5, int(cfg.min_overlap_seconds * fps_ref / coarse[i].step)),
         min_spread=cfg.min_spread, sigma=cfg.sigma, scale_range=sr,
         n_candidates=cfg.n_candidates, nms_frames=cfg.nms_seconds * fps_ref)
-    results = [_icp(i, j, int(round(c.offset)), c.angle, lanes, cfg, sr)
-               for c in curve.candidates]
+    offs = [int(round(c.offset)) for c in curve.candidates]
+    # quick ICP of every candidate, then the full ICP of the two best
+    results = [_icp(i, j, o, c.angle, lanes, cfg, sr, quick=True)
+               for o, c in zip(offs, curve.candidates, strict=True)]
     if not any(_plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
-        k0 = 0
-        results[k0] = _rotation_fallback(i, j, int(round(curve.candidates[k0].offset)),
-                                         results[k0], lanes, cfg, sr, rng)
-    scores = [r.score if r is not None else 0.0 for r in results]
+        results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
+    scores = _evidence(results, cfg)
+    for k in np.argsort(scores)[::-1][:2]:
+        r = results[k]
+        if r is not None:
+            results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
+    scores = _evidence(results, cfg)
     if not scores or max(scores) <= 0:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0)
     k = int(np.argmax(scores))
@@ -167,7 +174,8 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     assert best is not None
     fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best,
                       int(round(curve.candidates[k].offset)), sigma=cfg.refine_sigma,
-                      estimate_rate=cfg.estimate_rate, scale_range=sr, rng=rng)
+                      estimate_rate=cfg.estimate_rate, scale_range=sr,
+                      margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref), rng=rng)
     logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
                 fine[i].camera, fine[j].camera, fit.offset, fit.rate,
                 np.degrees(fit.transform.angle), fit.rms, ambiguity)
@@ -175,14 +183,24 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
 
 
 def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
-         sr: float) -> IcpResult | None:
+         sr: float, quick: bool = False) -> IcpResult | None:
+    frames = cfg.icp_max_frames // 4 if quick else cfg.icp_max_frames
     return icp_pair(lanes[i], lanes[j], offset, angle, sigma=cfg.sigma, gate=cfg.icp_gate,
                     min_gate=cfg.icp_min_gate, scale_range=sr, trim=cfg.icp_trim,
-                    max_frames=cfg.icp_max_frames)
+                    max_frames=frames, n_iter=8 if quick else 15)
+
+
+def _evidence(results: list[IcpResult | None], cfg: AlignConfig) -> list[float]:
+    """ICP evidence of each candidate at the noise level of the best one: one lap of a loop
+    off fits to a few decimetres, the true offset to the detection noise."""
+    rms = [r.rms for r in results if _plausible(r, cfg)]
+    sig = max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
+    # evidence per frame compared, so quick (subsampled) and full runs are comparable
+    return [r.evidence(sig) / max(1, r.n_frames) if r is not None else 0.0 for r in results]
 
 
 def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:
-    return res is not None and res.rms < 2 * cfg.sigma and res.n_matches >= 50
+    return res is not None and res.rms < 2 * cfg.sigma and res.n_matches >= 30
 
 
 def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: list[Lanes],

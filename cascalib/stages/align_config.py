@@ -34,6 +34,11 @@ class AlignConfig(BaseModel):
     max_speed: float = Field(
         8.0, gt=0, description="Fastest plausible foot speed (m/s); faster steps split a "
         "tracklet (identity switch or outlier).")
+    link_speed: float = Field(
+        2.5, gt=0, description="Walking speed (m/s) bounding how far a person moves across a "
+        "gap when linking detections without track ids.")
+    max_gap_seconds: float = Field(
+        0.4, ge=0, description="Longest gap (s) bridged inside one tracklet (occlusions).")
     jump_threshold: float = Field(
         0.5, gt=0, description="A point farther (m) than this from the running median of its "
         "tracklet is an outlier.")
@@ -59,7 +64,7 @@ class AlignConfig(BaseModel):
         1.0, gt=0, le=1, description="Largest |offset| searched as a fraction of the longer "
         "sequence (paper: one third; we search every offset with enough overlap).")
     n_candidates: int = Field(
-        3, ge=1, description="Offset peaks verified by ICP per camera pair.")
+        6, ge=1, description="Offset peaks verified by ICP per camera pair.")
     nms_seconds: float = Field(
         1.0, gt=0, description="Minimum separation (s) of two candidate peaks.")
     estimate_rate: bool = Field(

@@ -188,12 +188,15 @@ def _split_runs(frames: NDArray[np.int64], xy: NDArray[np.float64], max_gap: int
 
 def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None, *,
                    max_gap: int = 3, max_step: float = 0.35, min_length: int = 10,
-                   ) -> list[Tracklet]:
+                   jump_threshold: float = 0.5, link_speed: float = 0.1) -> list[Tracklet]:
     """Link per-frame ground points into tracklets.
 
     With detector track ids the ids are followed and only split at gaps and implausible jumps;
     without them consecutive frames are linked by Hungarian matching of positions (gated by
-    ``max_step`` metres per frame).
+    ``jump_threshold + link_speed * gap`` metres, ``link_speed`` in metres per frame). Along an
+    id, isolated points farther than
+    ``jump_threshold`` from the running median are dropped before splitting, so that a single
+    outlier does not cut a track in three.
 
     Parameters
     ----------
@@ -207,7 +210,7 @@ def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None 
     n_f, n_p = xy.shape[:2]
     ok = np.isfinite(xy).all(-1)
     if track_ids is None or not (track_ids[ok] >= 0).any():
-        ids = _hungarian_ids(xy, ok, max_gap, max_step)
+        ids = _hungarian_ids(xy, ok, max_gap, jump_threshold, link_speed)
     else:
         ids = np.where(ok & (track_ids >= 0), track_ids, -1)
         # detections without an id get fresh singleton ids (dropped below as too short)
@@ -225,14 +228,18 @@ def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None 
         uniq = np.r_[True, np.diff(f) > 0]
         f, p = f[uniq], p[uniq]
         pts = xy[f, p]
-        for run in _split_runs(f, pts, max_gap, max_step):
+        # split on steps of the running median: a lone outlier does not step, a switch does
+        med = _running_median(pts, 9)
+        good = np.linalg.norm(pts - med, axis=1) <= jump_threshold
+        f, p, pts, med = f[good], p[good], pts[good], med[good]
+        for run in _split_runs(f, med, max_gap, max_step):
             if run.size >= min_length:
                 out.append(Tracklet(f[run].astype(np.int64), pts[run], p[run].astype(np.int64)))
     return out
 
 
 def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
-                   max_step: float) -> NDArray[np.int64]:
+                   gate0: float, speed: float) -> NDArray[np.int64]:
     """Frame-to-frame linking by optimal assignment; ids (n_frames, n_persons), -1 missing."""
     n_f, n_p = ok.shape
     ids = np.full((n_f, n_p), -1, np.int64)
@@ -247,7 +254,7 @@ def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
             prev = np.array([active[k][1] for k in live])
             gaps = np.array([f - active[k][0] for k in live], float)
             d = np.linalg.norm(xy[f, cur][:, None] - prev[None], axis=-1)
-            cost = np.where(d <= max_step * gaps[None], d, 1e6)
+            cost = np.where(d <= gate0 + speed * gaps[None], d, 1e6)
             r, c = linear_sum_assignment(cost)
             good = cost[r, c] < 1e6
             for i, j in zip(r[good], c[good], strict=True):
@@ -260,13 +267,18 @@ def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
     return ids
 
 
+def _running_median(xy: NDArray[np.float64], window: int) -> NDArray[np.float64]:
+    """Running median of a track (n, 2) over ``window`` samples (shorter at the ends)."""
+    if len(xy) < 3:
+        return xy.copy()
+    w = min(window, len(xy) if len(xy) % 2 else len(xy) - 1)
+    return np.stack([median_filter(xy[:, k], size=w, mode="nearest") for k in (0, 1)], 1)
+
+
 def _jump_outliers(tracklet_xy: NDArray[np.float64], window: int, threshold: float
                    ) -> NDArray[np.bool_]:
     """Points farther than ``threshold`` from the running median of their tracklet."""
-    if len(tracklet_xy) < 3:
-        return np.zeros(len(tracklet_xy), bool)
-    w = min(window, len(tracklet_xy) | 1)
-    med = np.stack([median_filter(tracklet_xy[:, k], size=w, mode="nearest") for k in (0, 1)], 1)
+    med = _running_median(tracklet_xy, window)
     return np.linalg.norm(tracklet_xy - med, axis=1) > threshold
 
 
@@ -275,11 +287,11 @@ def ground_trajectories(tracks: Tracks, plane_camera: Camera, *, foot_height: fl
                         dbscan_eps: float = 0.6, dbscan_min_samples: int = 8,
                         dbscan_min_cluster_fraction: float = 0.02,
                         max_step: float = 0.35, max_gap: int = 3, min_length: int = 10,
-                        jump_threshold: float = 0.5) -> GroundTracks:
+                        jump_threshold: float = 0.5, link_speed: float = 0.1) -> GroundTracks:
     """Foot trajectories of one camera on its own ground plane, cleaned and linked.
 
-    ``max_step`` (metres per frame) and ``jump_threshold`` (metres) are for the camera's own
-    frame rate; 0.35 m per frame is 10 m/s at 30 fps.
+    ``max_step``, ``link_speed`` (metres per frame) and ``max_gap`` (frames) are for the
+    camera's own frame rate; 0.35 m per frame is 10 m/s at 30 fps.
 
     Returns
     -------
@@ -292,7 +304,8 @@ def ground_trajectories(tracks: Tracks, plane_camera: Camera, *, foot_height: fl
                            min_cluster_fraction=dbscan_min_cluster_fraction)
     xy = np.where(keep[..., None], raw, np.nan)
     tls = link_tracklets(xy, tracks.track_ids, max_gap=max_gap, max_step=max_step,
-                         min_length=min_length)
+                         min_length=min_length, jump_threshold=jump_threshold,
+                         link_speed=link_speed)
     clean = np.full_like(xy, np.nan)
     out: list[Tracklet] = []
     for tl in tls:

@@ -31,7 +31,7 @@ __all__ = ["Lanes", "Similarity2D", "IcpResult", "SyncFit", "dense_lanes", "assi
 
 logger = logging.getLogger(__name__)
 
-_BIG = 1e6
+_PERMS = {n: np.array(list(itertools.permutations(range(n)))) for n in range(1, 7)}
 
 
 @dataclass(frozen=True)
@@ -112,22 +112,30 @@ def assign_frames(cost: NDArray[np.float64], gate2: float) -> NDArray[np.int64]:
     """
     g, k, m = cost.shape
     c = np.where(np.isfinite(cost), np.minimum(cost, gate2), gate2)
-    n = max(k, m)
     out = np.full((g, k), -1, np.int64)
-    if n == 1 or k == 0 or m == 0:
-        if k and m:
-            out[:, 0] = 0
-    elif n <= 6:
-        pad = np.full((g, n, n), gate2)
-        pad[:, :k, :m] = c
-        perms = np.array(list(itertools.permutations(range(n))))
-        total = pad[:, np.arange(n)[None, :], perms].sum(-1)  # (g, n_perm)
-        best = perms[np.argmin(total, axis=1)][:, :k]
-        out = np.where(best < m, best, -1)
-    else:
-        for f in range(g):
-            r, cc = linear_sum_assignment(c[f])
-            out[f, r] = cc
+    if k == 0 or m == 0:
+        return out
+    # frames grouped by their problem size: rows/cols past the last present one are padding
+    fin = np.isfinite(cost)
+    nk = np.where(fin.any(2), np.arange(1, k + 1)[None, :], 0).max(1)
+    nl = np.where(fin.any(1), np.arange(1, m + 1)[None, :], 0).max(1)
+    size = np.maximum(nk, nl)
+    for n in np.unique(size):
+        fr = np.flatnonzero(size == n)
+        if n == 0:
+            continue
+        if n <= 6:
+            pad = np.full((fr.size, n, n), gate2)
+            kk, mm = min(k, n), min(m, n)
+            pad[:, :kk, :mm] = c[fr, :kk, :mm]
+            perms = _PERMS[n]
+            total = pad[:, np.arange(n)[None, :], perms].sum(-1)  # (frames, n_perm)
+            best = perms[np.argmin(total, axis=1)][:, :kk]
+            out[fr, :kk] = np.where(best < mm, best, -1)
+        else:
+            for f in fr:
+                r, cc = linear_sum_assignment(c[f])
+                out[f, r] = cc
     rows = np.arange(k)[None, :]
     matched = out >= 0
     val = np.where(matched, cost[np.arange(g)[:, None], rows, np.maximum(out, 0)], np.inf)
@@ -141,7 +149,9 @@ class IcpResult:
 
     transform : Similarity2D mapping B's ground frame into A's; score : sum of
     ``exp(-d^2 / 2 sigma^2)`` over matches (the candidate's evidence); rms : inlier RMS (m);
-    n_matches : matched detections; frames_a, lanes_a, frames_b, lanes_b : the matches.
+    n_matches : matched detections; n_frames : overlapping frames compared;
+    frames_a, lanes_a, frames_b, lanes_b : the matches;
+    distances : their residual distances (m).
     """
 
     transform: Similarity2D
@@ -152,6 +162,12 @@ class IcpResult:
     lanes_a: NDArray[np.int64]
     frames_b: NDArray[np.int64]
     lanes_b: NDArray[np.int64]
+    distances: NDArray[np.float64]
+    n_frames: int = 0
+
+    def evidence(self, sigma: float) -> float:
+        """Sum of ``exp(-d^2 / 2 sigma^2)`` over the matches."""
+        return float(np.exp(-0.5 * (self.distances / sigma) ** 2).sum())
 
 
 def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int) -> NDArray[np.int64]:
@@ -166,11 +182,24 @@ def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int) -> NDArr
     return ga
 
 
+def _compact(pos: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Move each frame's present lanes to the front: (g, k, 2) -> (g, k_eff, 2) and the lane
+    index of each kept column (sparse lanes would otherwise blow up the assignment)."""
+    valid = np.isfinite(pos[..., 0])
+    order = np.argsort(~valid, axis=1, kind="stable")
+    k_eff = max(1, int(valid.sum(1).max()))
+    order = order[:, :k_eff]
+    return np.take_along_axis(pos, order[..., None], axis=1), order
+
+
 def _init_translation(pa: NDArray[np.float64], pb: NDArray[np.float64], angle: float,
                       bin_size: float = 0.25) -> NDArray[np.float64]:
     """Mode of all per-frame differences ``a - R b`` (robust to unmatched people)."""
     c, s = np.cos(angle), np.sin(angle)
     qb = pb @ np.array([[c, -s], [s, c]]).T
+    if len(pa) > 300:
+        sel = np.linspace(0, len(pa) - 1, 300).astype(int)
+        pa, qb = pa[sel], qb[sel]
     d = (pa[:, :, None, :] - qb[:, None, :, :]).reshape(-1, 2)
     d = d[np.isfinite(d).all(1)]
     if d.size == 0:
@@ -207,7 +236,8 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
     ga = _overlap_frames(la, lb, offset, max_frames)
     if ga.size < 10:
         return None
-    pa, pb = la.pos[ga], lb.pos[ga - offset]
+    pa, ia = _compact(la.pos[ga])
+    pb, ib = _compact(lb.pos[ga - offset])
     tr = Similarity2D(angle, _init_translation(pa, pb, angle))
     g2 = gate
     for it in range(n_iter):
@@ -241,7 +271,8 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
     d2 = cost[fi, ka, kb]
     score = float(np.exp(-0.5 * d2 / sigma**2).sum())
     rms = float(np.sqrt(np.mean(d2))) if d2.size else np.inf
-    return IcpResult(tr, score, rms, int(fi.size), ga[fi], ka, ga[fi] - offset, kb)
+    return IcpResult(tr, score, rms, int(fi.size), ga[fi], ia[fi, ka], ga[fi] - offset,
+                     ib[fi, kb], np.sqrt(d2), int(ga.size))
 
 
 @dataclass(frozen=True)
@@ -264,38 +295,54 @@ class SyncFit:
 
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                max_samples: int = 4000, rng: np.random.Generator | None = None) -> SyncFit:
+                margin: float = 6.0, max_samples: int = 4000,
+                rng: np.random.Generator | None = None) -> SyncFit:
     """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
 
     Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
-    ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares.
+    ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
+    ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.).
     """
     rng = np.random.default_rng(rng)
     ua = icp.frames_a.astype(np.float64)
     xa = la.pos[icp.frames_a, icp.lanes_a]
     tid = lb.tid[icp.frames_b, icp.lanes_b]
-    ok = (tid >= 0) & np.isfinite(xa).all(1)
+    tida = la.tid[icp.frames_a, icp.lanes_a]
+    ok = (tid >= 0) & (tida >= 0) & np.isfinite(xa).all(1)
+    # smoothing is one-sided near a tracklet's ends: keep clear of A's ends (B's below)
+    start_a = a.start[np.maximum(tida, 0)]
+    len_a = np.array([len(a.xy[t]) for t in np.maximum(tida, 0)])
+    ok &= (ua >= start_a + margin) & (ua <= start_a + len_a - 1 - margin)
     ua, xa, tid = ua[ok], xa[ok], tid[ok]
-    if ua.size > max_samples:
-        sel = rng.choice(ua.size, max_samples, replace=False)
-        ua, xa, tid = ua[sel], xa[sel], tid[sel]
-    # per-tracklet interpolation tables of B (grid time, x, y) without gaps
-    tabs = {}
+    # B's tracklets (gaps removed) laid end to end on one virtual time axis, far apart, so one
+    # np.interp serves all; samples that could leave their tracklet are dropped
+    base, gv, xyv = {}, [], []
+    cursor = 0.0
     for t in np.unique(tid):
         xy = b.xy[t]
-        g = b.start[t] + np.arange(len(xy))
         good = np.isfinite(xy[:, 0])
-        tabs[int(t)] = (g[good].astype(np.float64), xy[good])
+        g = (b.start[t] + np.arange(len(xy)))[good].astype(np.float64)
+        base[int(t)] = cursor - g[0]
+        gv.append(g + base[int(t)])
+        xyv.append(xy[good])
+        cursor = gv[-1][-1] + 1000.0
+    gv_all, xy_all = np.concatenate(gv), np.concatenate(xyv)
+    off_t = np.array([base[int(t)] for t in tid])
+    ub0 = ua - offset
+    lo_t = np.array([b.start[t] + margin + 4.0 for t in tid])  # + the offset's bound
+    hi_t = np.array([b.start[t] + len(b.xy[t]) - 5.0 - margin for t in tid])
+    keep = (ub0 >= lo_t) & (ub0 <= hi_t)
+    ua, xa, off_t = ua[keep], xa[keep], off_t[keep]
+    if ua.size > max_samples:
+        sel = rng.choice(ua.size, max_samples, replace=False)
+        ua, xa, off_t = ua[sel], xa[sel], off_t[sel]
     u0 = float(np.median(ua))  # rate pivots about the middle: offset and rate decorrelate
 
     def predict(p: NDArray[np.float64]) -> NDArray[np.float64]:
         off, eps = p[0], p[1] * 1e-3
-        ub = (ua - u0 - off) / (1.0 + eps) + u0
-        out = np.empty_like(xa)
-        for t, (g, xy) in tabs.items():
-            m = tid == t
-            out[m, 0] = np.interp(ub[m], g, xy[:, 0])
-            out[m, 1] = np.interp(ub[m], g, xy[:, 1])
+        ub = (ua - u0 - off) / (1.0 + eps) + u0 + off_t
+        out = np.stack([np.interp(ub, gv_all, xy_all[:, 0]),
+                        np.interp(ub, gv_all, xy_all[:, 1])], axis=1)
         tr = Similarity2D(p[2], p[3:5], float(np.exp(p[5])))
         return tr.apply(out)
 

@@ -186,11 +186,12 @@ def _dense(track: GridTrack, n_fft: int) -> tuple[NDArray[np.complex128], ...]:
 
 
 def _chunk_fit(part: NDArray[np.float64], G: tuple[NDArray[np.complex128], ...], n_fft: int,
-               lags: NDArray[np.int64], min_samples: int, scale_range: float
-               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Procrustes residual of one chunk against every B tracklet at every lag.
+               lags: NDArray[np.int64], min_samples: int, scale_range: float, sigma: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Procrustes fit of one chunk against every B tracklet at every lag.
 
-    Returns (n, rms, angle), each shape (n_tl, n_lags); rms is inf where the overlap is short.
+    Returns the vote ``n * exp(-rms^2 / 2 sigma^2)`` of the best-fitting B tracklet at each lag
+    and that fit's rotation angle (A -> B), each shape (n_lags,).
     """
     ok = np.isfinite(part[:, 0])
     m = ok.astype(np.float64)
@@ -200,21 +201,23 @@ def _chunk_fit(part: NDArray[np.float64], G: tuple[NDArray[np.complex128], ...],
     F3 = np.conj(sfft.fft(m * np.abs(za) ** 2, n_fft))
     G1, G2, G3 = G
     X1 = sfft.ifft(F1 * (G1 + 1j * G3), axis=1)[:, lags]
-    n, qb = X1.real, X1.imag
+    n, qb = np.round(X1.real), X1.imag
     sb = sfft.ifft(F1 * G2, axis=1)[:, lags]
     sa = np.conj(sfft.ifft(F2 * G1, axis=1)[:, lags])
     c = sfft.ifft(F2 * G2, axis=1)[:, lags]
     qa = sfft.ifft(F3 * G1, axis=1)[:, lags].real
-    n = np.round(n)
     good = n >= min_samples
     nn = np.where(good, n, 1.0)
-    va = np.maximum(qa - np.abs(sa) ** 2 / nn, 1e-12)
-    vb = np.maximum(qb - np.abs(sb) ** 2 / nn, 0.0)
+    va = np.maximum(qa - (sa.real**2 + sa.imag**2) / nn, 1e-12)
+    vb = np.maximum(qb - (sb.real**2 + sb.imag**2) / nn, 0.0)
     x = c - sb * np.conj(sa) / nn
-    s = np.clip(np.abs(x) / va, 1.0 / scale_range, scale_range)  # b ~ s R a, stage-I scale
-    res = vb - 2 * s * np.abs(x) + s * s * va
-    rms = np.where(good, np.sqrt(np.maximum(res, 0.0) / nn), np.inf)
-    return n, rms, np.angle(x)
+    ax = np.abs(x)
+    s = np.clip(ax / va, 1.0 / scale_range, scale_range)  # b ~ s R a, stage-I scale
+    res = np.maximum(vb - 2 * s * ax + s * s * va, 0.0) / nn
+    support = np.where(good, n * np.exp(-0.5 * res / sigma**2), 0.0)
+    best = np.argmax(support, axis=0)
+    cols = np.arange(lags.size)
+    return support[best, cols], np.angle(x[best, cols])
 
 
 def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = None,
@@ -258,11 +261,7 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     G = _dense(b, n_fft)
     chunks = _chunks(a, chunk, min_overlap, min_spread)
     for p, part in chunks:
-        n, rms, ang = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range)
-        support = n * np.exp(-0.5 * (rms / sigma) ** 2)
-        best = np.argmax(support, axis=0)
-        sup = support[best, np.arange(lags.size)]
-        th = ang[best, np.arange(lags.size)]
+        sup, th = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range, sigma)
         off_idx = p - lags + b.length - 1
         keep = (sup > 1e-3) & (off_idx >= 0) & (off_idx < n_off)
         bins = np.floor((-th[keep] % (2 * np.pi)) / (2 * np.pi) * angle_bins).astype(int)
