@@ -93,9 +93,9 @@ class Person:
         Path direction at those points (rad).
     s : ndarray, shape (M,)
         Arc length walked at times ``k * DT``.
-    posture : ndarray, shape (M, 5)
-        Action posture targets (see :data:`ACTIONS`) times their fade weight, and the body yaw
-        relative to the path (turning on the spot).
+    posture : ndarray, shape (M, 6)
+        Action posture targets (see :data:`ACTIONS`) times their fade weight, the body yaw
+        relative to the path (turning on the spot) and the feet-together weight.
     """
 
     body: BodyModel
@@ -163,10 +163,14 @@ class Person:
         k = np.arange(self.s.size)
         post = np.stack([np.interp(t / DT, k, self.posture[:, i])
                          for i in range(self.posture.shape[1])], -1)
-        heading = heading + post[:, 4]  # turned on the spot while paused
         ankles, yaw, pitch = {}, {}, {}
         for side in (1, -1):
             ankles[side], yaw[side], pitch[side] = self._foot(s, side)
+        # While paused, the trailing (left) foot steps up beside the leading one and the body
+        # moves over both feet.
+        xy = xy + self._step_together(post[:, 5], ankles, yaw)[:, None] * np.stack(
+            [np.cos(heading), np.sin(heading)], -1)
+        heading = heading + post[:, 4]  # turned on the spot while paused
         fwd = np.stack([np.cos(heading), np.sin(heading)], -1)
         left = np.stack([-np.sin(heading), np.cos(heading)], -1)
         w = 2 * np.pi * s / self.stride
@@ -184,6 +188,25 @@ class Person:
             "elbow_flex_r": 0.25 + 0.25 * speed_frac * (1 - np.sin(w)),
         }
         return assemble_pose(self.body, pelvis, heading, ankles, yaw, pitch, posture)
+
+    def _step_together(self, g: NDArray[np.float64], ankles: dict[int, NDArray[np.float64]],
+                       yaw: dict[int, NDArray[np.float64]]) -> NDArray[np.float64]:
+        """Move the left foot beside the right one by weight ``g`` (T,), in place.
+
+        A pause starts in double support with the left foot a quarter stride behind the body
+        and the right one a quarter stride ahead; at ``g = 1`` the feet stand side by side under
+        the body. Returns how far (m) the body moves forward.
+        """
+        if not np.any(g > 0):
+            return np.zeros_like(g)
+        right, ry = ankles[-1], yaw[-1]
+        beside = right[:, :2] + 2 * 0.055 * self.height * np.stack([-np.sin(ry), np.cos(ry)], -1)
+        gs = g * g * (3 - 2 * g)
+        a = ankles[1]
+        a[:, :2] += gs[:, None] * (beside - a[:, :2])
+        a[:, 2] += 0.045 * self.height * np.sin(np.pi * g)
+        yaw[1] = yaw[1] + gs * (ry - yaw[1])
+        return 0.25 * self.stride * gs
 
     def _pelvis_height(self, pelvis_xy: NDArray[np.float64], heading: NDArray[np.float64],
                        ankles: dict[int, NDArray[np.float64]], drop: NDArray[np.float64]
@@ -249,7 +272,7 @@ def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
     """Arc length ``s`` and posture (M, 4) every DT seconds, plus (start, end, action) list."""
     m = int(np.ceil(duration / DT)) + 2
     v = np.zeros(m)
-    posture = np.zeros((m, 5))
+    posture = np.zeros((m, 6))
     actions: list[tuple[float, float, str]] = []
     t = 0.0 if cfg.periodic else rng.uniform(0, 1.0)
     # Bouts end in a pause with probability pause_prob, so the time between pauses is
@@ -280,6 +303,8 @@ def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
                 name = str(rng.choice(cfg.actions))
                 posture[j0:j1, :4] = fade[:, None] * np.asarray(ACTIONS[name])
                 actions.append((t, t + pause, name))
+            # step the feet together (0.5 s) and apart again before walking on
+            posture[j0:j1, 5] = np.clip(np.minimum(tt, pause - tt) / 0.5, 0, 1)
             if rng.random() < cfg.turn_prob:
                 yaw = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 90.0))
                 posture[j0:j1, 4] = fade * yaw
