@@ -277,9 +277,9 @@ def unpack(tracks: Tracks) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArra
     frames, slots : ndarray of int, shape (N,)
     present : ndarray of bool, shape (n_frames, n_persons)
     """
-    present = np.isfinite(tracks.keypoints[..., 0]).any(-1)
+    present = np.asarray(np.isfinite(tracks.keypoints[..., 0]).any(-1), dtype=bool)
     frames, slots = np.nonzero(present)
-    return frames, slots, present
+    return frames.astype(np.int64), slots.astype(np.int64), present
 
 
 def convert_skeleton(tracks: Tracks, target: str, fmt: str) -> Tracks:

@@ -157,7 +157,7 @@ def read_tracks_many(path: str | Path, *, camera: Any = None,
     if obj is None:
         obj = c.load_json(path, camera=camera)
     cam = camera if fmt == "native-json" else camera or c.default_camera(path)
-    return [_JSON_FORMATS[fmt].from_json(obj, path, camera=cam, **kw)]
+    return [_JSON_FORMATS[str(fmt)].from_json(obj, path, camera=cam, **kw)]
 
 
 def read_tracks(path: str | Path, *, camera: str | None = None,

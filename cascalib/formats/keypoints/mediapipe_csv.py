@@ -19,7 +19,7 @@ from __future__ import annotations
 import csv
 import re
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -80,7 +80,7 @@ def _load(path: Path) -> dict[str, NDArray[np.float64]]:
     return {n: data[:, k] for k, n in enumerate(_NEEDED)}
 
 
-def _empty_as_nan(cols: list[int]) -> dict[int, Any]:
+def _empty_as_nan(cols: list[int]) -> dict[int | str, Callable[[str], float]]:
     # Only frame_time may be empty (unknown); any other empty cell is caught as NaN later.
     return {i: (lambda s: float(s) if s.strip() else np.nan) for i in cols}
 
@@ -282,10 +282,10 @@ def _rows(tracks: Tracks, port: int, path: Path) -> list[str]:
     present = np.isfinite(tracks.keypoints[..., 0])
     n_persons = present.any(-1).sum(-1)
     if (n_persons > 1).any():
-        f = int(np.argmax(n_persons > 1))
-        raise InputError(f"{n_persons[f]} persons in one frame: the caliscope CSV holds one "
-                         "person per camera", file=str(path), camera=tracks.camera, frame=f,
-                         field="keypoints")
+        first = int(np.argmax(n_persons > 1))
+        raise InputError(f"{n_persons[first]} persons in one frame: the caliscope CSV holds "
+                         "one person per camera", file=str(path), camera=tracks.camera,
+                         frame=first, field="keypoints")
     if tracks.timestamps is not None:
         times = tracks.timestamps
     elif tracks.fps is not None:

@@ -128,7 +128,7 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
     c.check_values(kp, frames, file=path, camera=camera, conf_field="keypoint_scores")
     kp = c.zeros_to_nan(kp)
     tid = c.track_numbers(ids, frames, file=path, camera=camera, field="track_id")
-    sk = c.pick_skeleton(skeleton or _meta_skeleton(meta, kp.shape[1]), kp, file=path,
+    sk = c.pick_skeleton(skeleton or _meta_skeleton(meta, int(xy.shape[1])), kp, file=path,
                          camera=camera)
     n_frames = max((f.get("frame_id", k) for k, f in enumerate(frames_in)), default=0) + 1
     dense, track_ids = c.pack(frames, kp, tid, n_frames=n_frames)

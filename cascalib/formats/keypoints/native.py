@@ -133,7 +133,7 @@ def from_json(obj: Any, path: Path, *, camera: str | None = None, skeleton: Any 
 def _keypoints(obj: dict[str, Any], shape: tuple[int, ...], path: Path, camera: str
                ) -> NDArray[np.float64]:
     """Nested lists with ``null`` joints -> (F, P, J, 3) with NaN."""
-    raw = obj.get("keypoints")
+    raw: Any = obj.get("keypoints")
     n_f, n_p, n_j = shape
     nan3 = (np.nan, np.nan, np.nan)
     bad = InputError(f"'keypoints' must be nested lists of {n_f} frames x {n_p} persons x "
@@ -142,7 +142,7 @@ def _keypoints(obj: dict[str, Any], shape: tuple[int, ...], path: Path, camera: 
     try:
         ok = len(raw) == n_f and all(len(fr) == n_p and all(len(pe) == n_j for pe in fr)
                                      for fr in raw)
-        joints = [nan3 if j is None else j for fr in raw for pe in fr for j in pe]
+        joints: list[Any] = [nan3 if j is None else j for fr in raw for pe in fr for j in pe]
         ok = ok and all(len(j) == 3 for j in joints)
         if not ok:
             raise bad
@@ -165,9 +165,9 @@ def write_native_json(tracks: Tracks, path: str | Path) -> Path:
     path = Path(path)
     obj = _header(tracks)
     kp = tracks.keypoints
-    joints = kp.reshape(-1, 3).tolist()
     missing = np.isnan(kp[..., 0]).ravel().tolist()
-    joints = [None if m else j for j, m in zip(joints, missing, strict=True)]
+    joints: list[Any] = [None if m else j for j, m in
+                         zip(kp.reshape(-1, 3).tolist(), missing, strict=True)]
     n_f, n_p, n_j = kp.shape[:3]
     obj["keypoints"] = [[joints[(f * n_p + p) * n_j:(f * n_p + p + 1) * n_j]
                          for p in range(n_p)] for f in range(n_f)]
@@ -212,5 +212,5 @@ def write_native_npz(tracks: Tracks, path: str | Path) -> Path:
     if tracks.track_ids is not None:
         arrays["track_ids"] = tracks.track_ids
     with open(path, "wb") as fh:  # a file object: np.savez would append ".npz" to other names
-        np.savez_compressed(fh, **arrays)
+        np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
     return path

@@ -187,7 +187,7 @@ def write_openpose(tracks: Tracks, folder: str | Path) -> list[Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     kp = c.nan_to_zeros(tracks.keypoints)
-    present = np.isfinite(tracks.keypoints[..., 0]).any(-1)
+    _, _, present = c.unpack(tracks)
     tid = tracks.track_ids
     out = []
     for f in range(tracks.n_frames):
