@@ -139,16 +139,16 @@ CASES = {
         {}, "xy.csv", "port_1", 4, "img_loc_x", "line 3: 'abc' is not a number"),
     "csv NaN coordinate": (
         lambda t: _write(t, "xy.csv", CSV_HEADER + "0,2,0,1.0,0,10,20,,\n0,2,6,1.2,3,nan,20,,\n"),
-        {}, "xy.csv", "port_2", 6, "img_loc_x", "landmark 3 has no finite coordinate"),
+        {}, "xy.csv", "xy", 6, "img_loc_x", "landmark 3 has no finite coordinate"),
     "csv duplicate landmark": (
         lambda t: _write(t, "xy.csv", CSV_HEADER + "0,0,5,1.0,7,10,20,,\n0,0,5,1.0,7,11,20,,\n"),
-        {}, "xy.csv", "port_0", 5, "point_id", "landmark 7 appears twice"),
+        {}, "xy.csv", "xy", 5, "point_id", "landmark 7 appears twice"),
     "csv contradicting frame times": (
         lambda t: _write(t, "xy.csv", CSV_HEADER + "0,0,5,1.0,7,10,20,,\n0,0,5,1.1,8,11,20,,\n"),
-        {}, "xy.csv", "port_0", 5, "frame_time", "disagree on frame_time"),
+        {}, "xy.csv", "xy", 5, "frame_time", "disagree on frame_time"),
     "csv timestamps not increasing": (
         lambda t: _write(t, "xy.csv", CSV_HEADER + "0,0,0,2.0,7,10,20,,\n0,0,1,1.0,7,11,20,,\n"),
-        {}, "xy.csv", "port_0", 1, "timestamps", "timestamps must increase"),
+        {}, "xy.csv", "xy", 1, "timestamps", "timestamps must increase"),
     "csv missing column": (
         lambda t: _write(t, "xy.csv", "port,frame_index,point_id,img_loc_x,img_loc_y\n"),
         {}, "xy.csv", None, None, "frame_time", "missing CSV column"),
@@ -157,7 +157,7 @@ CASES = {
         {}, "xy.csv", None, None, "point_id", "no detections"),
     "csv only hand landmarks": (
         lambda t: _write(t, "xy.csv", CSV_HEADER + "0,0,0,1.0,101,10,20,,\n"),
-        {}, "xy.csv", "port_0", None, "point_id", "no detections"),
+        {}, "xy.csv", "xy", None, "point_id", "no detections"),
     "native shape mismatch": (
         lambda t: _write(t, "camF.json", json.dumps(
             {"schema": "cascalib/tracks@1", "camera": "camF", "skeleton": "coco17",

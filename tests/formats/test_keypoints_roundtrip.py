@@ -128,7 +128,7 @@ def test_mediapipe_csv_round_trip_of_several_cameras(tmp_path):
 def test_mediapipe_csv_uses_fps_for_frame_time_and_converts_skeletons(tmp_path):
     t = make_tracks("coco17", n_persons=1, ids=False, fps=25.0)
     b = read_tracks(write_tracks(t, tmp_path / "a.csv"))
-    assert b.skeleton.name == "blazepose33" and b.camera == "port_0"
+    assert b.skeleton.name == "blazepose33" and b.camera == "a"  # one port: named after the file
     np.testing.assert_allclose(b.timestamps[[0, 1, 3]], np.array([0, 1, 3]) / 25.0)
     ankle = CANONICAL_INDEX["left_ankle"]
     np.testing.assert_array_equal(b.canonical()[..., ankle, :2], t.canonical()[..., ankle, :2])

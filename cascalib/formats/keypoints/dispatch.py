@@ -124,7 +124,7 @@ def read_tracks_many(path: str | Path, *, camera: Any = None,
     camera : str, optional
         Camera name (default: the file or folder stem). For multi-camera files (caliscope CSV) a
         template with ``{port}``, a mapping port -> name or a list of names (default
-        ``port_N``).
+        ``port_N``, or the file stem for a single port).
     skeleton : str or Skeleton, optional
         Joint layout; default from the file or inferred from the joint count and content.
     image_size : "WxH", (W, H) or {camera: size}, optional

@@ -5,7 +5,8 @@
     ...
 
 One row per landmark. ``port`` is the camera: every port becomes one :class:`Tracks`, named
-``port_N`` unless the caller names it. ``frame_index`` is the row of that camera,
+``port_N`` unless the caller names it (a file with a single port is named after the file, like
+the single-camera formats). ``frame_index`` is the row of that camera,
 ``frame_time`` its capture time in seconds (kept as ``timestamps``, on the clock shared by all
 ports; ``nan`` or empty when unknown). ``point_id`` 0-32 are the BlazePose-33 body landmarks;
 other ids (hands 100+, 200+, face 500+) are not body joints and are not read. The file stores
@@ -124,7 +125,8 @@ def _integers(a: NDArray[np.float64], name: str, path: Path, cams: NDArray[np.fl
 
 def _names(ports: list[int], camera: CameraArg, path: Path) -> list[str]:
     if camera is None:
-        return [f"port_{p}" for p in ports]
+        # One camera per file (as the simulator writes them): named like any other file.
+        return [c.default_camera(path)] if len(ports) == 1 else [f"port_{p}" for p in ports]
     if isinstance(camera, str):
         if "{port}" in camera:
             return [camera.format(port=p) for p in ports]
@@ -155,7 +157,8 @@ def read_mediapipe_csv(path: str | Path, *, camera: CameraArg = None,
     Parameters
     ----------
     camera : optional
-        Camera names: see :data:`CameraArg`; default ``port_N``.
+        Camera names: see :data:`CameraArg`; default ``port_N`` (the file stem when the file
+        holds one port).
     skeleton : optional
         Must be BlazePose-33 if given (the CSV's point ids are BlazePose's).
     image_size, fps : optional
