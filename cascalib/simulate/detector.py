@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,38 +48,44 @@ class DetectorConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    noise_px: float = Field(1.0, ge=0, description="Constant pixel noise s.d. (px).")
+    noise_px: float = Field(default=1.0, ge=0, description="Constant pixel noise s.d. (px).")
     noise_rel: float = Field(
-        0.005, ge=0, description="Extra noise s.d. per pixel of person height (0.005: 2.5 px "
+        default=0.005, ge=0,
+        description="Extra noise s.d. per pixel of person height (0.005: 2.5 px "
         "for a 500 px tall person).")
     outlier_rate: float = Field(
-        0.0, ge=0, le=1, description="Fraction of joints with a heavy-tailed (Cauchy) error.")
+        default=0.0, ge=0, le=1,
+        description="Fraction of joints with a heavy-tailed (Cauchy) error.")
     outlier_scale: float = Field(
-        0.1, ge=0, description="Scale of the outlier error, as a fraction of person height.")
-    miss_rate: float = Field(0.0, ge=0, le=1, description="Fraction of joints missed.")
+        default=0.1, ge=0,
+        description="Scale of the outlier error, as a fraction of person height.")
+    miss_rate: float = Field(default=0.0, ge=0, le=1, description="Fraction of joints missed.")
     swap_rate: float = Field(
-        0.0, ge=0, le=1, description="Fraction of detections with left and right swapped.")
+        default=0.0, ge=0, le=1, description="Fraction of detections with left and right swapped.")
     occlusion: float = Field(
-        0.0, ge=0, le=1, description="Probability that a joint hidden behind a nearer person "
+        default=0.0, ge=0, le=1,
+        description="Probability that a joint hidden behind a nearer person "
         "is dropped (otherwise its noise is tripled and its confidence halved).")
     truncation: bool = Field(
-        True, description="Drop joints outside the image (a detector does not see them). "
+        default=True, description="Drop joints outside the image (a detector does not see them). "
         "When off, joints up to the Tracks margin outside the image are kept.")
     min_height_px: float = Field(
-        0.0, ge=0, description="Persons smaller than this (px) are not detected.")
+        default=0.0, ge=0, description="Persons smaller than this (px) are not detected.")
     false_positive_rate: float = Field(
-        0.0, ge=0, description="Expected false-positive detections per frame.")
+        default=0.0, ge=0, description="Expected false-positive detections per frame.")
     confidence: bool = Field(
-        True, description="Confidences fall with the error (else every confidence is 1).")
+        default=True, description="Confidences fall with the error (else every confidence is 1).")
     track_ids: str = Field(
-        "none", pattern="^(none|per_camera|global)$",
+        default="none", pattern="^(none|per_camera|global)$",
         description="'none': no ids; 'per_camera': ids consistent within a camera only; "
         "'global': the true person index in every camera.")
     id_switch: float = Field(
-        0.0, ge=0, le=1, description="Probability that two persons whose boxes overlap swap "
+        default=0.0, ge=0, le=1,
+        description="Probability that two persons whose boxes overlap swap "
         "their track ids.")
     shuffle_slots: bool = Field(
-        False, description="Order the persons of each frame randomly (as detectors do) instead "
+        default=False,
+        description="Order the persons of each frame randomly (as detectors do) instead "
         "of slot p = person p.")
 
     @classmethod
@@ -88,7 +95,7 @@ class DetectorConfig(BaseModel):
 
 
 def project_truth(cam: Camera, joints: NDArray[np.float64], heights: NDArray[np.float64],
-                  margin: float = IMAGE_MARGIN) -> tuple[NDArray[np.float64], ...]:
+                  margin: float = IMAGE_MARGIN) -> tuple[NDArray[Any], ...]:
     """Project true joints and tell which a camera can see.
 
     Parameters
@@ -153,7 +160,8 @@ def _occluded(uv: NDArray[np.float64], visible: NDArray[np.bool_],
         uu, vv = uv[sl][:, None, :, :, 0], uv[sl][:, None, :, :, 1]  # far person q
         with np.errstate(invalid="ignore"):
             inside = (uu >= b[..., 0]) & (uu <= b[..., 2]) & (vv >= b[..., 1]) & (vv <= b[..., 3])
-            nearer = (depth[sl][:, :, None] < depth[sl][:, None, :]) & any_vis[sl][:, :, None]
+            d = depth[sl]
+            nearer = (d[:, :, None] < d[:, None, :]) & np.asarray(any_vis)[sl][:, :, None]
         out[sl] = (inside & nearer[..., None]).any(1)
     return out
 
@@ -219,7 +227,7 @@ def _false_positives(cfg: DetectorConfig, uv: NDArray[np.float64], size: tuple[i
                      rng: np.random.Generator) -> NDArray[np.float64]:
     """False detections (F, M, 26, 3): true-looking poses at wrong places and scales."""
     F = uv.shape[0]
-    n = rng.poisson(cfg.false_positive_rate, F)
+    n = np.asarray(rng.poisson(cfg.false_positive_rate, F))
     m = int(n.max()) if F else 0
     out = np.full((F, m, 26, 3), np.nan)
     pool = uv.reshape(-1, 26, 2)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,12 +41,13 @@ def save_scene(scene: Scene, outdir: Path, fmt: str = "native-json") -> Path:
         write_tracks(tr, outdir / "tracks" / f"{tr.camera}{TRACK_SUFFIX[fmt]}", format=fmt)
     save_calibration(scene.truth, outdir / "calibration.json", format="json")
     normal, offset = scene.ground_plane
-    arrays = {"heights": scene.heights, "ground_normal": normal, "ground_offset": offset}
+    arrays: dict[str, Any] = {"heights": scene.heights, "ground_normal": normal,
+                              "ground_offset": offset}
     for name in scene.camera_names:
         arrays[f"{name}/joints3d"] = scene.joints3d(name)
         arrays[f"{name}/frame_times"] = scene.frame_times(name)
         arrays[f"{name}/slot_to_person"] = scene.slot_to_person(name)
-    np.savez_compressed(outdir / "truth.npz", **arrays)
+    np.savez_compressed(outdir / "truth.npz", allow_pickle=False, **arrays)
     info = {"seed": scene.seed, "config": scene.config.model_dump(mode="json"),
             "format": fmt, "cameras": scene.camera_names,
             "actions": [[list(a) for a in p.actions] for p in scene.people]}

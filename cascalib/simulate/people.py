@@ -51,34 +51,39 @@ class PeopleConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    n_persons: int = Field(5, ge=1, le=20, description="Number of persons.")
-    height_mean: float = Field(1.70, gt=0.5, lt=2.5, description="Mean body height (m).")
-    height_sd: float = Field(0.07, ge=0.0, lt=0.5, description="Body height s.d. (m).")
+    n_persons: int = Field(default=5, ge=1, le=20, description="Number of persons.")
+    height_mean: float = Field(default=1.70, gt=0.5, lt=2.5, description="Mean body height (m).")
+    height_sd: float = Field(default=0.07, ge=0.0, lt=0.5, description="Body height s.d. (m).")
     speed_range: tuple[float, float] = Field(
-        (0.8, 1.6), description="Walking speed range (m/s); each person walks at one speed.")
+        default=(0.8, 1.6),
+        description="Walking speed range (m/s); each person walks at one speed.")
     area: tuple[float, float] = Field(
-        (8.0, 8.0), description="Capture area (x, y) size in m, centred on the origin.")
+        default=(8.0, 8.0), description="Capture area (x, y) size in m, centred on the origin.")
     curviness: float = Field(
-        0.2, ge=0.0, description="s.d. of the path curvature (rad/m, correlated over ~3 m); "
+        default=0.2, ge=0.0,
+        description="s.d. of the path curvature (rad/m, correlated over ~3 m); "
         "0 walks straight.")
-    walk_mean_s: float = Field(8.0, gt=0.0, description="Mean duration of a walking bout (s).")
+    walk_mean_s: float = Field(
+        default=8.0, gt=0.0,
+        description="Mean duration of a walking bout (s).")
     pause_prob: float = Field(
-        0.3, ge=0.0, le=1.0, description="Probability that a walking bout ends in a pause.")
+        default=0.3, ge=0.0, le=1.0, description="Probability that a walking bout ends in a pause.")
     pause_range_s: tuple[float, float] = Field(
-        (1.5, 5.0), description="Duration range of a pause (s).")
+        default=(1.5, 5.0), description="Duration range of a pause (s).")
     action_prob: float = Field(
-        0.4, ge=0.0, le=1.0,
+        default=0.4, ge=0.0, le=1.0,
         description="Probability that a pause is spent on a non-standing action.")
     turn_prob: float = Field(
-        0.5, ge=0.0, le=1.0, description="Probability that a person turns the body on the "
+        default=0.5, ge=0.0, le=1.0, description="Probability that a person turns the body on the "
         "spot (30-90 deg, feet planted) during a pause.")
     actions: tuple[str, ...] = Field(
-        ("bend", "sit", "crouch", "raise_arms"), description="Actions to draw from.")
+        default=("bend", "sit", "crouch", "raise_arms"), description="Actions to draw from.")
     periodic: bool = Field(
-        False, description="Walk in circles at constant speed (the paper's failure case for "
+        default=False,
+        description="Walk in circles at constant speed (the paper's failure case for "
         "synchronisation, Sec. 5.1).")
     circle_radius: tuple[float, float] = Field(
-        (1.5, 2.5), description="Circle radius range (m) when periodic.")
+        default=(1.5, 2.5), description="Circle radius range (m) when periodic.")
 
 
 @dataclass(frozen=True)
@@ -325,12 +330,12 @@ def _snap_stops(s: NDArray[np.float64], v: NDArray[np.float64], stride: float
     moving = v > 1e-9
     edges = np.flatnonzero(np.diff(moving.astype(int)))
     starts = [0] if moving[0] else []
-    starts += [e + 1 for e in edges if moving[e + 1]]
+    starts += [int(e) + 1 for e in edges if moving[e + 1]]
     out = s.copy()
     offset = 0.0
     cur = 0
     for b0 in starts:
-        b1 = next((e + 1 for e in edges if e + 1 > b0 and not moving[e + 1]), None)
+        b1 = next((int(e) + 1 for e in edges if e + 1 > b0 and not moving[e + 1]), None)
         if b1 is None:  # still walking when the scene ends
             break
         out[cur:b0] = s[cur:b0] + offset

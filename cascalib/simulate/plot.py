@@ -47,11 +47,11 @@ def plot_birds_eye(scene: Scene, ax: Axes) -> None:
         ax.plot(*hip[0, p], "o", color=color, ms=4)
     span = float(np.max(np.abs([c.center[:2] for c in scene.truth])))
     for cam in scene.truth:
-        length = 0.6 * span + np.linalg.norm(cam.center[:2])
+        length = 0.6 * span + float(np.linalg.norm(cam.center[:2]))
         ax.add_patch(Polygon(_wedge(cam, length), closed=True, alpha=0.12, color="k", lw=0))
         c = cam.center
         ax.plot(c[0], c[1], "k^", ms=7)
-        ax.annotate(f"{cam.name}\n{c[2]:.1f} m, {cam.fps:g} fps", c[:2], fontsize=7,
+        ax.annotate(f"{cam.name}\n{c[2]:.1f} m, {cam.fps:g} fps", (c[0], c[1]), fontsize=7,
                     xytext=(4, 4), textcoords="offset points")
     w, d = scene.config.people.area
     ax.add_patch(Polygon([[-w / 2, -d / 2], [w / 2, -d / 2], [w / 2, d / 2], [-w / 2, d / 2]],

@@ -23,32 +23,33 @@ class RigConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    n_cameras: int = Field(4, ge=1, le=32, description="Number of cameras.")
+    n_cameras: int = Field(default=4, ge=1, le=32, description="Number of cameras.")
     layout: str = Field(
-        "ring", pattern="^(ring|sides)$",
+        default="ring", pattern="^(ring|sides)$",
         description="'ring': evenly spread azimuths around the area centre (with jitter); "
         "'sides': cameras on the two long sides of a field, facing it.")
-    height_range: tuple[float, float] = Field((2.0, 3.0), description="Camera height (m).")
+    height_range: tuple[float, float] = Field(default=(2.0, 3.0), description="Camera height (m).")
     distance_range: tuple[float, float] = Field(
-        (4.0, 6.0), description="Horizontal distance from the area centre (m).")
-    azimuth_jitter_deg: float = Field(15.0, ge=0, description="Azimuth jitter (deg).")
+        default=(4.0, 6.0), description="Horizontal distance from the area centre (m).")
+    azimuth_jitter_deg: float = Field(default=15.0, ge=0, description="Azimuth jitter (deg).")
     target_jitter: float = Field(
-        0.15, ge=0, description="s.d. of the look-at point as a fraction of the area size.")
-    target_height: float = Field(1.0, description="Height of the look-at point (m).")
+        default=0.15, ge=0, description="s.d. of the look-at point as a fraction of the area size.")
+    target_height: float = Field(default=1.0, description="Height of the look-at point (m).")
     fov_range_deg: tuple[float, float] = Field(
-        (50.0, 90.0), description="Field of view across the long image side (deg).")
+        default=(50.0, 90.0), description="Field of view across the long image side (deg).")
     image_sizes: tuple[tuple[int, int], ...] = Field(
-        ((1920, 1080),), description="Landscape (W, H) sizes to choose from.")
-    portrait_prob: float = Field(0.0, ge=0, le=1, description="Probability of portrait.")
+        default=((1920, 1080),), description="Landscape (W, H) sizes to choose from.")
+    portrait_prob: float = Field(default=0.0, ge=0, le=1, description="Probability of portrait.")
     principal_offset: float = Field(
-        0.03, ge=0, lt=0.5, description="Max principal point offset from the image centre, "
+        default=0.03, ge=0, lt=0.5, description="Max principal point offset from the image centre, "
         "as a fraction of the image size.")
     radial_distortion: float = Field(
-        0.0, ge=0, le=0.3, description="Max |k1| (barrel, k1 < 0); k2 is drawn at a fifth of "
+        default=0.0, ge=0, le=0.3,
+        description="Max |k1| (barrel, k1 < 0); k2 is drawn at a fifth of "
         "it; 0 disables distortion.")
     tangential_distortion: float = Field(
-        0.0, ge=0, le=0.01, description="s.d. of p1, p2.")
-    roll_sd_deg: float = Field(2.0, ge=0, description="s.d. of the camera roll (deg).")
+        default=0.0, ge=0, le=0.01, description="s.d. of p1, p2.")
+    roll_sd_deg: float = Field(default=2.0, ge=0, description="s.d. of the camera roll (deg).")
 
 
 #: Realistic rigs. The capture area each is meant for is set by the scene preset.

@@ -38,16 +38,16 @@ class SceneConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    description: str = Field("", description="One line saying what the scene is for.")
-    duration_s: float = Field(60.0, gt=2.0, le=3600, description="Length of the scene (s).")
+    description: str = Field(default="", description="One line saying what the scene is for.")
+    duration_s: float = Field(default=60.0, gt=2.0, le=3600, description="Length of the scene (s).")
     people: PeopleConfig = Field(default_factory=PeopleConfig, description="The persons.")
     rig: RigConfig = Field(default_factory=RigConfig, description="The cameras.")
     timing: TimingConfig = Field(default_factory=TimingConfig, description="Camera clocks.")
     detector: DetectorConfig = Field(
         default_factory=DetectorConfig, description="The simulated 2D pose detector.")
-    skeleton: str = Field("halpe26", description="Skeleton of the written detections.")
+    skeleton: str = Field(default="halpe26", description="Skeleton of the written detections.")
     camera_names: list[str] | None = Field(
-        None, description="Camera names (default cam0, cam1, ...).")
+        default=None, description="Camera names (default cam0, cam1, ...).")
 
     def with_(self, **changes: Any) -> SceneConfig:
         """A copy with (dotted, nested) fields replaced: ``with_(**{"people.n_persons": 3})``."""
@@ -241,8 +241,8 @@ def simulate(config: SceneConfig | str = "terrace", seed: int = 0, **overrides: 
             raise InputError("the simulated camera sees nobody; change the rig or the seed",
                              camera=cam.name)
         tracks.append(Tracks(cam.name, _to_skeleton(det.keypoints, config.skeleton),
-                             config.skeleton, image_size=cam.image_size, fps=clock.fps,
-                             track_ids=det.track_ids,
+                             get_skeleton(config.skeleton), image_size=cam.image_size,
+                             fps=clock.fps, track_ids=det.track_ids,
                              meta={"simulated": True, "seed": seed}))
         slots[cam.name] = det.slot_to_person
     truth = Calibration(truth_cams, quality={"simulated": True, "seed": seed})

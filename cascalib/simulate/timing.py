@@ -32,21 +32,22 @@ class TimingConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     fps: tuple[float, ...] = Field(
-        (30.0,), description="Frame rates drawn from, per camera (e.g. STANDARD_FPS).")
+        default=(30.0,), description="Frame rates drawn from, per camera (e.g. STANDARD_FPS).")
     fps_in_turn: bool = Field(
-        False, description="Give the cameras the rates of `fps` in turn (guaranteed mixed "
+        default=False, description="Give the cameras the rates of `fps` in turn (guaranteed mixed "
         "rates) instead of drawing them at random.")
     max_offset_s: float = Field(
-        3.0, ge=0, description="Start times are spread uniformly over this many seconds.")
+        default=3.0, ge=0, description="Start times are spread uniformly over this many seconds.")
     drift_sd: float = Field(
-        0.0, ge=0, lt=0.01, description="s.d. of the relative clock drift (1e-4 = 100 ppm); "
+        default=0.0, ge=0, lt=0.01,
+        description="s.d. of the relative clock drift (1e-4 = 100 ppm); "
         "the reference camera has none.")
     late_start_prob: float = Field(
-        0.0, ge=0, le=1, description="Probability that a camera starts late.")
+        default=0.0, ge=0, le=1, description="Probability that a camera starts late.")
     early_stop_prob: float = Field(
-        0.0, ge=0, le=1, description="Probability that a camera stops early.")
+        default=0.0, ge=0, le=1, description="Probability that a camera stops early.")
     late_max_s: float = Field(
-        10.0, ge=0, description="Max extra delay of a late start / early stop (s).")
+        default=10.0, ge=0, description="Max extra delay of a late start / early stop (s).")
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,8 @@ class Clock:
 
     def frame_times(self) -> NDArray[np.float64]:
         """World time (s) of each frame, shape (n_frames,)."""
-        return self.start + np.arange(self.n_frames) * (1 + self.drift) / self.fps
+        k = np.arange(self.n_frames, dtype=np.float64)
+        return np.asarray(self.start + k * ((1 + self.drift) / self.fps), dtype=np.float64)
 
     def time_offset_rate(self, ref: Clock) -> tuple[float, float]:
         """``(time_offset, time_rate)`` of this clock relative to the reference clock ``ref``."""
