@@ -329,8 +329,8 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     gv_all, xy_all = np.concatenate(gv), np.concatenate(xyv)
     off_t = np.array([base[int(t)] for t in tid])
     ub0 = ua - offset
-    lo_t = np.array([b.start[t] + margin + 4.0 for t in tid])  # + the offset's bound
-    hi_t = np.array([b.start[t] + len(b.xy[t]) - 5.0 - margin for t in tid])
+    lo_t = np.array([b.start[t] + margin + 6.0 for t in tid])  # + the offset's bound
+    hi_t = np.array([b.start[t] + len(b.xy[t]) - 7.0 - margin for t in tid])
     keep = (ub0 >= lo_t) & (ub0 <= hi_t)
     ua, xa, off_t = ua[keep], xa[keep], off_t[keep]
     if ua.size > max_samples:
@@ -352,8 +352,8 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     p0 = np.r_[float(offset), 0.0, icp.transform.angle, icp.transform.t,
                np.log(icp.transform.scale)]
     ls = np.log(scale_range) + 1e-9
-    lo = np.r_[offset - 4.0, -5.0 if estimate_rate else -1e-9, -np.inf, -np.inf, -np.inf, -ls]
-    hi = np.r_[offset + 4.0, 5.0 if estimate_rate else 1e-9, np.inf, np.inf, np.inf, ls]
+    lo = np.r_[offset - 6.0, -5.0 if estimate_rate else -1e-9, -np.inf, -np.inf, -np.inf, -ls]
+    hi = np.r_[offset + 6.0, 5.0 if estimate_rate else 1e-9, np.inf, np.inf, np.inf, ls]
     p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
     sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=sigma,
                         diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5], x_scale="jac")
