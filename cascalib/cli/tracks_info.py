@@ -22,9 +22,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="input format (default: detected from the content)")
     p.add_argument("--skeleton", default=None, help="skeleton name where ambiguous")
-    p.add_argument("--image-size", default=None, metavar="WxH",
-                   help="image size for formats that do not store it")
-    p.add_argument("--fps", type=float, default=None, help="frame rate if not stored")
+    p.add_argument("--image-size", action="append", default=None, metavar="[CAM=]WxH",
+                   help="image size for formats that do not store it (repeat per camera)")
+    p.add_argument("--fps", action="append", default=None, metavar="[CAM=]FPS",
+                   help="frame rate if not stored (repeat per camera)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(run=run)
 
@@ -39,12 +40,24 @@ def summary(tracks: Tracks, fmt: str) -> dict[str, Any]:
             "track_ids": tracks.track_ids is not None, "source": tracks.source}
 
 
+def per_camera(values: list[str] | None) -> dict[str, str] | None:
+    """``["1920x1080", "cam2=1280x720"]`` -> ``{"*": "1920x1080", "cam2": "1280x720"}``."""
+    if not values:
+        return None
+    out = {}
+    for v in values:
+        name, _, value = v.rpartition("=")
+        out[name.strip() or "*"] = value.strip()
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     rows = []
     for path in args.paths:
         fmt = args.format or detect_format(path)
-        for t in read_tracks_many(path, skeleton=args.skeleton, image_size=args.image_size,
-                                  fps=args.fps, format=fmt):
+        for t in read_tracks_many(path, skeleton=args.skeleton,
+                                  image_size=per_camera(args.image_size),
+                                  fps=per_camera(args.fps), format=fmt):
             rows.append(summary(t, fmt))
     if args.json:
         print(json.dumps({"ok": True, "cameras": rows}, indent=2))

@@ -42,9 +42,14 @@ def test_tracks_info_table(shared_data, capsys):
 
 
 def test_tracks_info_json_and_bad_input(tmp_path, capsys):
-    assert main(["tracks-info", "--json", "--image-size", "640x480", "--fps", "30",
-                 str(DATA / "mmpose_video.json")]) == 0
+    # the mmpose file stores its image size (640x480): that wins over the default
+    assert main(["tracks-info", "--json", "--image-size", "1280x720", "--fps", "30",
+                 "--fps", "port_2=25", "--image-size", "port_2=1920x1080",
+                 str(DATA / "mmpose_video.json"), str(DATA / "caliscope.csv")]) == 0
     out = json.loads(capsys.readouterr().out)
+    port0, port2 = out["cameras"][1:]
+    assert (port0["fps"], port0["image_size"]) == (30.0, [1280, 720])
+    assert (port2["fps"], port2["image_size"]) == (25.0, [1920, 1080])
     cam = out["cameras"][0]
     assert (cam["format"], cam["frames"], cam["persons"], cam["detections"]) == ("mmpose", 3,
                                                                                  2, 3)

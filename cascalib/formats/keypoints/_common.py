@@ -52,9 +52,10 @@ def default_camera(path: Path) -> str:
 
 
 def for_camera(value: Any, camera: str) -> Any:
-    """Pick a caller's value for one camera: a mapping is looked up by name, else used as is."""
+    """Pick a caller's value for one camera: a mapping is looked up by name (key ``"*"``: every
+    other camera), anything else is used as is."""
     if isinstance(value, Mapping):
-        return value.get(camera)
+        return value.get(camera, value.get("*"))
     return value
 
 
