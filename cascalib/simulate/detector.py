@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.signal import lfilter
 
 from cascalib.camera import Camera
 from cascalib.simulate.rigs import valid_radius
@@ -53,6 +54,10 @@ class DetectorConfig(BaseModel):
         default=0.005, ge=0,
         description="Extra noise s.d. per pixel of person height (0.005: 2.5 px "
         "for a 500 px tall person).")
+    noise_corr: float = Field(
+        default=0.0, ge=0, lt=1,
+        description="Frame-to-frame correlation of the pixel noise (AR(1) coefficient): "
+        "detectors jitter smoothly, not independently per frame; 0 gives white noise.")
     outlier_rate: float = Field(
         default=0.0, ge=0, le=1,
         description="Fraction of joints with a heavy-tailed (Cauchy) error.")
@@ -209,7 +214,12 @@ def _noisy(cfg: DetectorConfig, uv: NDArray[np.float64], pixel_height: NDArray[n
     sigma = np.where(degraded, 3.0 * sigma, sigma)
     noise = np.zeros(uv.shape)
     if np.any(sigma > 0):
-        noise = rng.standard_normal(uv.shape) * sigma[..., None]
+        white = rng.standard_normal(uv.shape)
+        if cfg.noise_corr > 0:  # AR(1) along the frame axis, unit variance kept
+            a = cfg.noise_corr
+            white[0] /= np.sqrt(1 - a * a)
+            white = lfilter([np.sqrt(1 - a * a)], [1.0, -a], white, axis=0)
+        noise = white * sigma[..., None]
     if cfg.outlier_rate > 0:
         hit = rng.random(shape) < cfg.outlier_rate
         scale = (cfg.outlier_scale * pixel_height)[..., None, None]

@@ -17,8 +17,8 @@ __all__ = ["PRESETS", "preset", "REALISTIC_DETECTOR"]
 
 #: A detector with the imperfections of a good off-the-shelf model (HRNet/ViTPose class).
 REALISTIC_DETECTOR = DetectorConfig(
-    noise_px=1.0, noise_rel=0.008, outlier_rate=0.01, miss_rate=0.02, swap_rate=0.005,
-    occlusion=0.6, min_height_px=30, false_positive_rate=0.05)
+    noise_px=1.0, noise_rel=0.008, noise_corr=0.5, outlier_rate=0.01, miss_rate=0.02,
+    swap_rate=0.005, occlusion=0.6, min_height_px=30, false_positive_rate=0.05)
 
 
 def _rig(name: str, **changes: object) -> RigConfig:

@@ -233,3 +233,14 @@ def test_plane_camera_is_the_camera_in_its_own_ground_frame(clean):
         assert abs(axis[1]) < 1e-9 and axis[0] > 0  # optical axis projects onto +x
         x = clean.joints3d(name)[::40]
         np.testing.assert_allclose(pc.project((x - t) @ R), cam.project(x), atol=1e-6)
+
+
+def test_correlated_noise_keeps_its_spread():
+    scene, cam, x = _single_camera_joints(3)
+    cfg = DetectorConfig(noise_px=2.0, noise_rel=0.0, noise_corr=0.8, confidence=False)
+    det = detect(cam, x, scene.heights, cfg, np.random.default_rng(0))
+    err = (det.keypoints[..., :2] - cam.project(x)) / (2.0 * JOINT_SIGMA[:, None])
+    both = np.isfinite(err[1:, ..., 0]) & np.isfinite(err[:-1, ..., 0])
+    a, b = err[1:][both], err[:-1][both]
+    assert np.std(a) == pytest.approx(1.0, rel=0.1)
+    assert np.corrcoef(a[:, 0], b[:, 0])[0, 1] == pytest.approx(0.8, abs=0.05)
