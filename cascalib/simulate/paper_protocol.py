@@ -114,7 +114,7 @@ def _draw_people(cam: Camera, heights: NDArray[np.float64], rng: np.random.Gener
         uv = rng.uniform([0, 0], [w - 1, h - 1], (4 * k + 8, 2))
         g = cam.backproject_to_plane(uv)
         d = np.linalg.norm(g[:, :2] - cam.center[:2], axis=1)
-        sh = cam.project(g + np.array([0.0, 0.0, 1.0]) * heights[filled:filled + 1].max())
+        sh = cam.project(g + np.array([0.0, 0.0, 1.0]) * heights[filled:].max())
         ok = (np.isfinite(g[:, 0]) & (d < max_distance) & (sh[:, 0] >= 0) & (sh[:, 0] <= w - 1)
               & (sh[:, 1] >= 0) & (sh[:, 1] <= h - 1))
         take = g[ok][:k]
