@@ -122,6 +122,19 @@ CASES = {
                            {"frame": 3, "keypoints": [[10, 10, 1]] * 16 + [[900, 10, 1]]}]),
         {"image_size": "320x240"}, "camC.json", "camC", 3, "image_size",
         "lies far outside the 320x240 image"),
+    "mmpose meta image size": (
+        lambda t: _write(t, "camB.json", json.dumps({"meta_info": {"image_size": [640, 0]},
+                                                     "instance_info": [{"frame_id": 0,
+                                                                        "instances": [_inst()]}]})),
+        {}, "camB.json", "camB", None, "image_size", "image size must be positive"),
+    "mmpose meta fps": (
+        lambda t: _write(t, "camB.json", json.dumps({"meta_info": {"fps": "fast"},
+                                                     "instance_info": [{"frame_id": 0,
+                                                                        "instances": [_inst()]}]})),
+        {}, "camB.json", "camB", None, "fps", "frame rate in the file must be a positive"),
+    "given fps": (
+        lambda t: _ref(t, [{"frame": 0, "keypoints": COCO_PERSON}]),
+        {"fps": {"camC": -5}}, None, "camC", None, "fps", "given frame rate must be a positive"),
     "unknown json format": (
         lambda t: _write(t, "camE.json", '{"frames": []}'),
         {}, "camE.json", None, None, "format", r"unknown keypoint format.*\['frames'\]"),

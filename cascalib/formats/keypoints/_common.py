@@ -66,29 +66,39 @@ def resolve_image_size(from_file: Any, given: SizeArg, *, camera: str, file: Pat
     caller_size = None if caller is None else parse_image_size(caller, camera=camera)
     if from_file is None:
         return caller_size
-    size = parse_image_size(from_file, camera=camera)
+    try:
+        size = parse_image_size(from_file, camera=camera)
+    except InputError as exc:
+        raise InputError(exc.message, file=str(file), camera=camera, field="image_size") from None
     if caller_size is not None and caller_size != size:
         logger.warning("%s: camera %s: the file says image size %dx%d, ignoring the given "
                        "%dx%d", file, camera, *size, *caller_size)
     return size
 
 
-def resolve_fps(from_file: float | None, given: FpsArg, *, camera: str, file: Path
-                ) -> float | None:
+def _positive(value: Any, *, what: str, file: Path | None, camera: str) -> float:
+    try:
+        fps = float(value)
+    except (TypeError, ValueError):
+        fps = np.nan
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"{what} must be a positive number, got {value!r}",
+                         file=None if file is None else str(file), camera=camera, field="fps")
+    return fps
+
+
+def resolve_fps(from_file: Any, given: FpsArg, *, camera: str, file: Path) -> float | None:
     """The frame rate stored in the file wins; the caller's is used where the file has none."""
     caller = for_camera(given, camera)
     if caller is not None:
-        try:
-            caller = float(caller)
-        except (TypeError, ValueError):
-            raise InputError(f"frame rate must be a number, got {caller!r}", camera=camera,
-                             field="fps") from None
+        caller = _positive(caller, what="the given frame rate", file=None, camera=camera)
     if from_file is None:
         return caller
-    if caller is not None and caller != from_file:
+    fps = _positive(from_file, what="the frame rate in the file", file=file, camera=camera)
+    if caller is not None and caller != fps:
         logger.warning("%s: camera %s: the file says %g fps, ignoring the given %g", file,
-                       camera, from_file, caller)
-    return float(from_file)
+                       camera, fps, caller)
+    return fps
 
 
 def as_records(rows: list[Any], frames: NDArray[np.int64], *, n_joints: int | None,
