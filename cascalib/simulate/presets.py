@@ -2,6 +2,24 @@
 
 ``PRESETS[name]`` is a :class:`~cascalib.simulate.scene.SceneConfig` whose ``description`` says
 in one line what it is for; :func:`preset` returns a copy (so callers can change it freely).
+``cascalib simulate --list`` prints them.
+
+=================  ======  =======  ==========  ===================  ===========================
+preset             cams    persons  area (m)    frame rates          what it stresses
+=================  ======  =======  ==========  ===================  ===========================
+paper_single_view  1       5        8 x 8       30                   stage I as in the supplement
+lab_ring           6       3        5 x 5       30                   the easy indoor case
+terrace            4       5        10 x 10     25                   EPFL-terrace-like outdoor rig
+periodic           4       3        6 x 6       30                   circles: ambiguous sync
+crowd              4       15       12 x 12     25                   occlusion, ids, false hits
+security           4       6        15 x 15     25 / 30, drift       steep views, distortion
+sports             6       12       40 x 20     50 / 60              far, small people
+phones             4       3        6 x 6       30 / 60 / 29.97      portrait, drift, late start
+clean              4       4        10 x 10     25                   perfect detector (tests)
+=================  ======  =======  ==========  ===================  ===========================
+
+The single-view protocol itself (ankle/shoulder pairs, the supplement's three sweeps) is
+:mod:`cascalib.simulate.paper_protocol`.
 """
 
 from __future__ import annotations
