@@ -202,6 +202,15 @@ def _build() -> dict[str, Skeleton]:
         "right_wrist",
     )  # fmt: skip
     sk.append(Skeleton("h36m17", h36m, h36m_c, aliases=("h36m", "human36m")))
+    # COCO-WholeBody (mmpose/rtmlib RTMW, DWPose): body, 6 foot points, then 68 face and 2 x 21
+    # hand points that have no canonical joint.
+    wholebody = _COCO17 + (
+        "left_big_toe", "left_small_toe", "left_heel",
+        "right_big_toe", "right_small_toe", "right_heel",
+    ) + tuple(f"face_{i}" for i in range(68)) + tuple(
+        f"{side}_hand_{i}" for side in ("left", "right") for i in range(21))  # fmt: skip
+    sk.append(Skeleton("coco_wholebody133", wholebody, _identity(wholebody),
+                       aliases=("coco_wholebody", "wholebody", "rtmw", "dwpose")))
     return {s.name: s for s in sk}
 
 

@@ -150,3 +150,16 @@ def test_every_format_has_a_round_trip_test():
     tested = {"native-json", "native-npz", "openpose", "mmpose", "cascalib-ref", "coco",
               "mediapipe-csv"}
     assert tested == set(FORMATS)
+
+
+def test_wholebody_133_is_recognised_from_mmpose_meta_and_from_the_count(tmp_path):
+    t = make_tracks("coco_wholebody133", image_size=(640, 480))
+    path = write_tracks(t, tmp_path / "wb.json", format="mmpose")
+    r = read_tracks(path)
+    assert r.skeleton.name == "coco_wholebody133"
+    assert_same_detections(t, r)
+    heel = CANONICAL_INDEX["left_heel"]
+    np.testing.assert_array_equal(r.canonical()[..., heel, :], t.keypoints[..., 19, :])
+    # without the meta: 133 joints can only be COCO-WholeBody
+    plain = read_tracks(write_tracks(t, tmp_path / "wb", format="openpose"))
+    assert plain.skeleton.name == "coco_wholebody133"
