@@ -228,7 +228,8 @@ def _global_time(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     usable = [p for p in pairs if p.fit is not None]
     edges = [(p.i, p.j, p.fit.offset, np.log(p.fit.rate),  # type: ignore[union-attr]
-              max(0.05, 1.0 - p.ambiguity)) for p in usable]
+              max(0.05, 1.0 - p.ambiguity), p.fit.offset_sd,  # type: ignore[union-attr]
+              p.fit.rate_sd / p.fit.rate) for p in usable]  # type: ignore[union-attr]
     a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)
     accepted = np.zeros(len(pairs), bool)
     idx = [k for k, p in enumerate(pairs) if p.fit is not None]

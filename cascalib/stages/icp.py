@@ -281,7 +281,8 @@ class SyncFit:
 
     ``u_a = rate * u_b + offset`` (grid times in reference frames) and ``x_a = T(x_b)``.
     ``pairs_a``, ``pairs_b`` (n, 2): matched ground points (at the fitted time) for the global
-    alignment; ``rms``: robust residual (m); ``offset_sd``: 1-sigma of the offset (frames).
+    alignment; ``rms``: robust residual (m); ``offset_sd``, ``rate_sd``: 1-sigma of the offset
+    at ``u_b = 0`` (frames) and of the rate.
     """
 
     offset: float
@@ -291,11 +292,12 @@ class SyncFit:
     offset_sd: float
     pairs_a: NDArray[np.float64]
     pairs_b: NDArray[np.float64]
+    rate_sd: float = np.inf
 
 
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                margin: float = 6.0, max_samples: int = 4000,
+                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 4000,
                 rng: np.random.Generator | None = None) -> SyncFit:
     """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
 
@@ -347,7 +349,10 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
         return tr.apply(out)
 
     def resid(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (xa - predict(p)).ravel()
+        # one prior row keeps the rate near the fps prior when the overlap is too short to
+        # measure it (a few seconds cannot tell 0.1 % apart)
+        prior = sigma * p[1] * 1e-3 / rate_prior_sd
+        return np.r_[(xa - predict(p)).ravel(), prior]
 
     p0 = np.r_[float(offset), 0.0, icp.transform.angle, icp.transform.t,
                np.log(icp.transform.scale)]
@@ -357,23 +362,27 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
     sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=sigma,
                         diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5], x_scale="jac")
-    r = sol.fun.reshape(-1, 2)
+    r = sol.fun[:-1].reshape(-1, 2)
     d = np.linalg.norm(r, axis=1)
     inl = d < 3 * max(sigma, np.median(d) * 1.5)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
     try:
-        J = sol.jac[np.repeat(inl, 2)]
-        cov = np.linalg.inv(J.T @ J) * rms**2
-        off_sd = float(np.sqrt(max(cov[0, 0], 0.0)))
+        J = sol.jac[np.r_[np.repeat(inl, 2), True]]
+        # smoothed samples are correlated over ~2 sqrt(pi) s.d.: inflate the covariance
+        cov = np.linalg.inv(J.T @ J) * rms**2 * max(1.0, 3.5 * margin / 3.0)
     except np.linalg.LinAlgError:
-        off_sd = np.inf
+        cov = np.full((6, 6), np.inf)
     p = sol.x
     rate = 1.0 + p[1] * 1e-3
     offset_at_zero = p[0] + u0 - rate * u0  # u_a = rate * u_b + offset_at_zero
+    g = np.array([1.0, -u0 * 1e-3])
+    off_sd = float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
+    rate_sd = float(np.sqrt(max(cov[1, 1], 0.0)) * 1e-3)
     tr = Similarity2D(float(p[2]), p[3:5].copy(), float(np.exp(p[5])))
     pb = predict(p)
     sel = np.flatnonzero(inl)
     if sel.size > 400:
         sel = rng.choice(sel, 400, replace=False)
     pb_native = tr.inverse().apply(pb[sel])
-    return SyncFit(float(offset_at_zero), float(rate), tr, rms, off_sd, xa[sel], pb_native)
+    return SyncFit(float(offset_at_zero), float(rate), tr, rms, off_sd, xa[sel], pb_native,
+                   rate_sd)

@@ -299,17 +299,18 @@ def _peaks(offsets: NDArray[np.float64], score: NDArray[np.float64], hist: NDArr
     return out
 
 
-def solve_time(n_cams: int, edges: list[tuple[int, int, float, float, float]], reference: int,
-               *, tolerance: float = 2.0, n_iter: int = 20
+def solve_time(n_cams: int, edges: list[tuple[float, ...]], reference: int, *,
+               tolerance: float = 2.0, n_iter: int = 20
                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Globally consistent clock models from pairwise estimates.
 
-    Each edge ``(i, j, offset, log_rate, weight)`` says grid time ``u_i = exp(log_rate) * u_j +
-    offset``. Unknowns per camera: ``ref = a_c * u_c + b_c`` (``a_ref = 1, b_ref = 0``).
-    Log-rates then offsets are solved by iteratively reweighted L1 (so that a single wrong
-    pair, e.g. a period-off peak, is outvoted by the cycles through the other cameras); edges
-    whose offset residual exceeds ``tolerance`` frames are rejected and the rest are averaged
-    by weighted least squares.
+    Each edge ``(i, j, offset, log_rate, weight[, offset_sd, log_rate_sd])`` says grid time
+    ``u_i = exp(log_rate) * u_j + offset``. Unknowns per camera: ``ref = a_c * u_c + b_c``
+    (``a_ref = 1, b_ref = 0``). Log-rates then offsets are solved by iteratively reweighted L1
+    with the edge weights (so that a single wrong pair, e.g. a period-off peak, is outvoted by
+    the cycles through the other cameras); edges whose offset residual exceeds ``tolerance``
+    frames are rejected and the rest are averaged by least squares weighted by their standard
+    deviations (when given; else by ``weight``).
 
     Returns
     -------
@@ -318,10 +319,9 @@ def solve_time(n_cams: int, edges: list[tuple[int, int, float, float, float]], r
     """
     if not edges:
         return np.ones(n_cams), np.zeros(n_cams), np.zeros(0, bool)
-    E = np.asarray(edges, dtype=np.float64)
+    E = np.array([tuple(e) + (np.nan, np.nan)[: 7 - len(e)] for e in edges], dtype=np.float64)
     i, j = E[:, 0].astype(int), E[:, 1].astype(int)
     w0 = np.maximum(E[:, 4], 1e-6)
-    # rates: log a_j - log a_i = log_rate
     A = np.zeros((len(E), n_cams))
     A[np.arange(len(E)), j] = 1.0
     A[np.arange(len(E)), i] -= 1.0
@@ -333,12 +333,18 @@ def solve_time(n_cams: int, edges: list[tuple[int, int, float, float, float]], r
     ok = np.abs(A @ b - np.exp(log_a)[i] * E[:, 2]) <= tolerance
     if ok.any():
         # the consistent pairs agree to noise level: average them by weighted least squares
-        sw = np.sqrt(w0[ok])
-        log_a[free] = np.linalg.lstsq(A[ok][:, free] * sw[:, None], E[ok, 3] * sw,
-                                      rcond=None)[0]
-        y = np.exp(log_a)[i[ok]] * E[ok, 2]
-        b[free] = np.linalg.lstsq(A[ok][:, free] * sw[:, None], y * sw, rcond=None)[0]
+        w_r = np.where(np.isfinite(E[:, 6]), 1.0 / (E[:, 6] ** 2 + 1e-10), w0)[ok]
+        w_o = np.where(np.isfinite(E[:, 5]), 1.0 / (E[:, 5] ** 2 + 1e-4), w0)[ok]
+        Ak = A[ok][:, free]
+        log_a[free] = _wlstsq(Ak, E[ok, 3], w_r)
+        b[free] = _wlstsq(Ak, np.exp(log_a)[i[ok]] * E[ok, 2], w_o)
     return np.exp(log_a), b, ok
+
+
+def _wlstsq(A: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.float64]
+            ) -> NDArray[np.float64]:
+    sw = np.sqrt(w / w.max())
+    return np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)[0]
 
 
 def _irls_l1(A: NDArray[np.float64], y: NDArray[np.float64], w0: NDArray[np.float64],

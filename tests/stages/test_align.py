@@ -1,0 +1,115 @@
+"""align_cameras end to end on synthetic rigs: true cameras expressed in per-camera plane frames
+(random yaw, shift, optional scale error), unknown offsets and frame rates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from align_scene import AlignScene, make_scene
+
+from cascalib.errors import InputError
+from cascalib.geometry import rotation_angle_deg, umeyama
+from cascalib.stages.align import AlignConfig, align_cameras
+
+
+def assert_aligned(res, sc: AlignScene, *, offset_tol: float = 0.25, rate_tol: float = 5e-4,
+                   rot_tol: float = 0.5, pos_tol: float = 0.1) -> None:
+    est, tru = res.calibration.cameras, sc.truth
+    for e, t in zip(est, tru, strict=True):
+        assert e.time_offset == pytest.approx(t.time_offset, abs=offset_tol), e.name
+        assert e.time_rate == pytest.approx(t.time_rate, rel=rate_tol), e.name
+        rel_e, rel_t = e.R @ est[0].R.T, t.R @ tru[0].R.T
+        assert rotation_angle_deg(rel_e @ rel_t.T) < rot_tol, e.name
+        np.testing.assert_allclose(e.K, t.K)
+    # centres agree after one rigid ground-plane motion (the reference's own frame is arbitrary)
+    ce = np.array([c.center for c in est])
+    ct = np.array([c.center for c in tru])
+    _, R, tr = umeyama(ce[:, :2], ct[:, :2], with_scale=False)
+    assert np.abs(ce[:, :2] @ R.T + tr - ct[:, :2]).max() < pos_tol
+    np.testing.assert_allclose(ce[:, 2], ct[:, 2] * ce[0, 2] / ct[0, 2], atol=pos_tol)
+
+
+def test_large_offsets_three_walkers() -> None:
+    sc = make_scene(n_cams=3, n_persons=3, n_ref_frames=700, offsets=[0.0, 310.0, -330.4],
+                    seed=1)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    assert_aligned(res, sc)
+    assert all(not f for f in res.flags.values())
+    assert min(res.confidence.values()) > 0.5
+    assert all(p.accepted for p in res.pairs)
+
+
+def test_mixed_frame_rates_and_drift() -> None:
+    sc = make_scene(n_cams=3, n_persons=3, n_ref_frames=700, fps=[30.0, 25.0, 30.0],
+                    rates=[1.0, 1.2, 1.001], offsets=[0.0, 120.5, -90.0], seed=2)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    assert_aligned(res, sc)
+
+
+def test_scale_error_is_corrected_by_the_similarity() -> None:
+    sc = make_scene(n_cams=3, n_persons=3, n_ref_frames=600, offsets=[0.0, 60.0, -45.0],
+                    scale_error=0.06, seed=7)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    scales = [T.scale for T in res.transforms]
+    truth = [1.0 / s for s, _, _ in sc.plane_from_world]
+    np.testing.assert_allclose(scales, truth, rtol=0.01)
+    assert_aligned(res, sc)
+
+
+def test_no_track_ids_noise_and_outliers() -> None:
+    sc = make_scene(n_cams=3, n_persons=3, n_ref_frames=600, offsets=[0.0, 200.0, -100.0],
+                    noise_px=2.0, outlier_rate=0.05, track_ids=False, seed=11)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    # 20 s with 7 cm ground noise: the rate is known to ~0.08 % (1 s.d.) from the data
+    assert_aligned(res, sc, offset_tol=0.5, rate_tol=2e-3)
+
+
+def test_periodic_loops_with_lap_variability_are_resolved() -> None:
+    # the paper's failure case: one person per loop, offsets of one and two laps
+    sc = make_scene(n_cams=3, n_persons=2, n_ref_frames=900, path="loop", period=6.0,
+                    variability=0.15, offsets=[0.0, 180.0, -360.0], seed=8)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    assert_aligned(res, sc, offset_tol=0.5)
+
+
+def test_exactly_periodic_motion_is_flagged_not_trusted() -> None:
+    sc = make_scene(n_cams=2, n_persons=1, n_ref_frames=700, path="loop", period=6.0,
+                    variability=0.0, offsets=[0.0, 180.0], noise_px=1.0, seed=9)
+    res = align_cameras(sc.tracks, sc.plane, rng=0)
+    assert "ambiguous" in res.flags["cam1"]
+    assert res.confidence["cam1"] < 0.3
+
+
+def test_reference_by_name_and_rigid_option() -> None:
+    sc = make_scene(n_cams=2, n_persons=2, n_ref_frames=500, offsets=[0.0, -40.0], seed=4)
+    res = align_cameras(sc.tracks, sc.plane, AlignConfig(estimate_scale=False),
+                        reference="cam1", rng=0)
+    assert res.calibration.reference_camera == "cam1"
+    cam0, cam1 = res.calibration.cameras
+    assert cam1.time_offset == 0.0 and cam1.time_rate == 1.0
+    assert cam0.time_offset == pytest.approx(40.0, abs=0.25)
+    np.testing.assert_allclose(cam1.center, sc.plane[1].center, atol=1e-9)
+    assert all(T.scale == pytest.approx(1.0, abs=1e-6) for T in res.transforms)
+
+
+@pytest.mark.parametrize(("kind", "message"), [
+    ("count", "2 tracks for 1 plane cameras"),
+    ("order", "paired with plane camera"),
+    ("reference", "reference camera 'nope' is not one of"),
+])
+def test_bad_inputs_name_the_problem(kind: str, message: str) -> None:
+    sc = make_scene(n_cams=2, n_persons=1, n_ref_frames=50, seed=0)
+    tracks, plane, ref = sc.tracks, sc.plane, None
+    if kind == "count":
+        plane = plane[:1]
+    elif kind == "order":
+        plane = plane[::-1]
+    else:
+        ref = "nope"
+    with pytest.raises(InputError, match=message):
+        align_cameras(tracks, plane, reference=ref)
+
+
+def test_config_rejects_unknown_fields() -> None:
+    with pytest.raises(ValueError, match="extra"):
+        AlignConfig(sigmaa=0.1)
