@@ -128,8 +128,8 @@ def test_assign_frames_equals_hungarian_with_gate() -> None:
         cc = np.where(np.isfinite(c[0]), np.minimum(c[0], 2.0), 2.0)
         r, col = linear_sum_assignment(cc)
 
-        def total(o: np.ndarray) -> float:
-            return sum(cc[i, o[i]] if o[i] >= 0 else 2.0 for i in range(k))
+        def total(o: np.ndarray, cc: np.ndarray = cc) -> float:
+            return sum(cc[i, o[i]] if o[i] >= 0 else 2.0 for i in range(len(o)))
 
         ref = np.full(k, -1)
         good = np.isfinite(c[0, r, col]) & (c[0, r, col] < 2.0)
