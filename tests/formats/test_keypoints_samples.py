@@ -131,3 +131,12 @@ def test_native_json_sample():
 def test_caller_camera_name_overrides_the_file_stem():
     assert read_tracks(DATA / "coco_results.json", camera="c7").camera == "c7"
     assert read_tracks(DATA / "native.json", camera="c8").camera == "c8"
+
+
+def test_caliscope_csv_empty_frame_time_means_unknown(tmp_path):
+    path = tmp_path / "one.csv"
+    path.write_text("sync_index,port,frame_index,frame_time,point_id,img_loc_x,img_loc_y,"
+                    "obj_loc_x,obj_loc_y\n0,4,0,,0,10,20,,\n1,4,1,,0,11.5,20,,\n")
+    t = read_tracks(path)
+    assert t.camera == "one" and t.timestamps is None  # a single port: named after the file
+    np.testing.assert_array_equal(t.keypoints[:, 0, 0], [[10, 20, 1], [11.5, 20, 1]])

@@ -68,16 +68,21 @@ def _load(path: Path) -> dict[str, NDArray[np.float64]]:
         raise InputError(f"missing CSV column(s) {', '.join(missing)}", file=str(path),
                          field=missing[0])
     cols = [header.index(n) for n in _NEEDED]
-    try:
-        with warnings.catch_warnings():
-            # A header without rows is reported as "no detections" by the caller.
-            warnings.filterwarnings("ignore", "loadtxt: input contained no data")
-            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2,
-                              dtype=np.float64, converters=_empty_as_nan(cols),
-                              encoding="utf-8")
-    except ValueError:
+    data = None
+    # Plain C parsing first; per-cell converters (for empty cells) only when that fails.
+    for converters in (None, _empty_as_nan(cols)):
+        try:
+            with warnings.catch_warnings():
+                # A header without rows is reported as "no detections" by the caller.
+                warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+                data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, ndmin=2,
+                                  dtype=np.float64, converters=converters, encoding="utf-8")
+            break
+        except ValueError:
+            continue
+    if data is None:
         _raise_first_bad_row(path, cols)
-        raise
+        raise InputError("cannot parse the CSV", file=str(path))  # pragma: no cover
     return {n: data[:, k] for k, n in enumerate(_NEEDED)}
 
 
