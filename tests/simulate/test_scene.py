@@ -244,3 +244,15 @@ def test_correlated_noise_keeps_its_spread():
     a, b = err[1:][both], err[:-1][both]
     assert np.std(a) == pytest.approx(1.0, rel=0.1)
     assert np.corrcoef(a[:, 0], b[:, 0])[0, 1] == pytest.approx(0.8, abs=0.05)
+
+
+def test_strong_distortion_never_folds_points_into_the_image():
+    scene = simulate("security", seed=0, duration_s=8, detector=DetectorConfig.clean(),
+                     **{"rig.radial_distortion": 0.3, "rig.fov_range_deg": (90, 100)})
+    for tr in scene.tracks:
+        cam = scene.truth[tr.camera]
+        assert cam.dist[0] < -0.05
+        xc = cam.world_to_cam(scene.joints3d(tr.camera))
+        seen = np.isfinite(tr.keypoints[..., 0])
+        ideal = xc[..., :2][seen] / xc[..., 2:][seen]
+        np.testing.assert_allclose(cam.undistort(tr.keypoints[..., :2][seen]), ideal, atol=1e-9)
