@@ -219,11 +219,28 @@ def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: Ref
     return stance, head
 
 
+def _height_scale(points: NDArray[np.float64], names: tuple[str, ...], cfg: RefineConfig,
+                  height: float) -> float:
+    """Factor that brings the median head-top height of upright persons to the prior."""
+    stance, head = _foot_and_head(points, names, cfg)
+    if not head.any() or not stance.any():
+        return 1.0
+    feet_z = np.nanmedian(points[stance][:, 2])
+    head_z = np.nanmedian(points[head][:, 2])
+    target = cfg.head_top_fraction * height - cfg.ankle_height
+    rise = head_z - feet_z
+    return float(target / rise) if rise > 0.5 else 1.0
+
+
 def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *,
                   height: float, n_persons: int, reference: int, model: str = "f",
                   targets: dict[int, NDArray] | None = None) -> GraphProblem:
     names = tuple(cfg.joints)
     joints = np.array([CANONICAL_INDEX[n] for n in names])
+    obs = assoc.obs.copy()
+    # a joint is a variable only with two usable observations: drop weak ones before triangulating
+    obs[np.nan_to_num(obs[..., 2]) < cfg.min_confidence] = np.nan
+    assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground)
     points, err = triangulate_groups(assoc, cameras, joints)
     e = err[np.isfinite(err)]
     # median of a 2D error norm is 1.18 sigma (chi, 2 dof)
@@ -240,10 +257,28 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
                         sigma)
 
 
-def _solve(prob: GraphProblem, cfg: RefineConfig):  # noqa: ANN202 - internal
-    graph = build_graph(prob, cfg)
-    values, info = optimize(graph, initial_values(prob), cfg)
-    cameras, points = unpack(values, prob)
+def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noqa: ANN201
+    """Graduated solve: from a poor start the noise level is the spread of the residuals.
+
+    Each stage solves with ``prob.sigma_px``, then lowers it to the spread of the new residuals
+    (never below ``cfg.sigma_px``) and solves again from the result.
+
+    Returns
+    -------
+    cameras, points, info, graph, values
+        Refined cameras and joints (S, J, 3), the last SolveInfo, graph and gtsam Values.
+    """
+    values = initial_values(prob)
+    for _ in range(max_stages):
+        graph = build_graph(prob, cfg)
+        values, info = optimize(graph, values, cfg)
+        cameras, points = unpack(values, prob)
+        if prob.sigma_px <= cfg.sigma_px:
+            break
+        proj = np.stack([cam.project(points) for cam in cameras], axis=1)  # (S, C, J, 2)
+        err = np.linalg.norm(proj - prob.obs[..., :2], axis=-1)
+        e = err[np.isfinite(err)]
+        prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
     return cameras, points, info, graph, values
 
 
@@ -266,7 +301,7 @@ def _distortion_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     """Free principal point and distortion (with priors); keep only if held-out error drops."""
     prob = _make_problem(assoc.subset(sel), cameras, cfg, model="ds2", **kw)
     try:
-        cams2, _, info, graph, values = _solve(prob, cfg)
+        cams2, _, info, graph, values = solve(prob, cfg)
     except RefinementFailed as exc:
         log.warning("distortion pass failed, keeping the pinhole cameras: %s", exc)
         return None
@@ -371,12 +406,15 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         kw = dict(height=height, n_persons=_persons_per_time(assoc), reference=data.reference,
                   targets=targets)
         prob = _make_problem(assoc.subset(sel), cameras, cfg, **kw)
-        cameras, _, info, graph, values = _solve(prob, cfg)
+        cameras, _, info, graph, values = solve(prob, cfg)
         solves.append(info)
         if cfg.use_bones:
             # targets from this round's cameras, whose scale the height prior has already set
             pts, _ = triangulate_groups(assoc, cameras, joints)
             targets = bone_targets(pts, assoc.tracks, *_bones(tuple(cfg.joints)))
+            # rescale to the height prior so the bone terms never pin a scale it disagrees with
+            k = _height_scale(pts, tuple(cfg.joints), cfg, height)
+            targets = {tr: v * k for tr, v in targets.items()}
         if cfg.refine_time and r < cfg.n_rounds - 1:
             cameras = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                                      joints, search=cfg.time_search_frames,

@@ -53,14 +53,19 @@ class RefineConfig(BaseModel):
         0.07, gt=0, description="Population sd of adult height (m); the paper assumes one "
         "height of 1.70 m (supplement, height error L_h).")
     head_top_fraction: float = Field(
-        1.0, gt=0.8, le=1.1, description="Height of the head_top keypoint as a fraction of "
-        "the body height when standing.")
+        0.97, gt=0.8, le=1.1, description="Height of the head_top keypoint as a fraction of "
+        "stature while walking (knee flexion and a keypoint just below the vertex: 0.95-0.99 "
+        "in cascalib.simulate's gait model).")
     ankle_height: float = Field(
-        0.08, ge=0, le=0.2, description="Height of the ankle joint above the floor (m) when "
-        "the foot is in stance (paper supplement, L_p, uses 0).")
+        0.07, ge=0, le=0.2, description="Height of the ankle joint above the floor (m) when "
+        "the foot is in stance: 0.039 of stature (Winter 2009); the paper (L_p) uses 0.")
     ground_sigma_m: float = Field(0.03, gt=0, description="Stance-ankle height noise (m).")
+    ground_effective_n: int = Field(
+        10, ge=1, description="The stance-ankle priors together weigh as this many ankles. "
+        "They only fix the plane (z, roll, pitch); at full weight they would shrink the scene, "
+        "since a smaller scale shrinks the spread of ankle heights at no reprojection cost.")
     stance_tolerance_m: float = Field(
-        0.05, gt=0, description="A foot is in stance when its ankle is at most this much higher "
+        0.03, gt=0, description="A foot is in stance when its ankle is at most this much higher "
         "than the other ankle (m).")
     use_bones: bool = Field(
         True, description="Left/right symmetry and constant bone length over each track, as "

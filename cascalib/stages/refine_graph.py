@@ -30,6 +30,7 @@ call inside gtsam's optimisers, which grows with the square of the problem):
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -138,10 +139,12 @@ def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
     """Ground (stance ankles), height (head tops) and bone-length factors."""
     keys = prob.point_keys()
     huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.robust_k)
+    feet = np.nonzero(prob.stance & (keys >= 0))
+    sigma_g = cfg.ground_sigma_m * np.sqrt(max(len(feet[0]) / cfg.ground_effective_n, 1.0))
     ground = gtsam.noiseModel.Robust.Create(
-        huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([_LOOSE, _LOOSE, cfg.ground_sigma_m])))
+        huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([_LOOSE, _LOOSE, sigma_g])))
     n_ground = 0
-    for s, j in zip(*np.nonzero(prob.stance & (keys >= 0)), strict=True):
+    for s, j in zip(*feet, strict=True):
         graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])),
                                           np.array([0.0, 0.0, cfg.ankle_height]), ground))
         n_ground += 1
@@ -250,6 +253,7 @@ class SolveInfo:
     error_after: float
     iterations: int
     n_factors: int
+    seconds: float
 
 
 def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig
@@ -261,6 +265,7 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     RefinementFailed
         If gtsam fails (indeterminate system, NaN) or the error does not decrease.
     """
+    t0 = time.perf_counter()
     before = graph.error(values)
     try:
         if cfg.schur:
@@ -283,7 +288,7 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
         raise RefinementFailed(f"bundle adjustment diverged (error {before:.4g} -> {after:.4g})")
     log.info("bundle adjustment: error %.4g -> %.4g in %d iterations (%d factors)", before,
              after, iterations, graph.size())
-    return result, SolveInfo(before, after, iterations, graph.size())
+    return result, SolveInfo(before, after, iterations, graph.size(), time.perf_counter() - t0)
 
 
 def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDArray[np.float64]]:
@@ -318,19 +323,42 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
     return cams, points
 
 
+def _shape_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, prob: GraphProblem
+                 ) -> gtsam.NonlinearFactorGraph:
+    """``graph`` plus tight priors that fix the reference pose and the rig's scale.
+
+    The marginals of the result describe the rig's *shape* (what a similarity alignment to a
+    reference measures), without the shared uncertainty of the world's plane, yaw and scale.
+    """
+    shape = gtsam.NonlinearFactorGraph()
+    shape.push_back(graph)
+    ref = prob.reference
+    pose_ref = values.atPose3(X(ref))
+    shape.add(gtsam.PriorFactorPose3(X(ref), pose_ref, gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    others = [c for c in range(len(prob.cameras)) if c != ref]
+    far = max(others, key=lambda c: np.linalg.norm(values.atPose3(X(c)).translation()
+                                                   - pose_ref.translation()))
+    dist = float(np.linalg.norm(values.atPose3(X(far)).translation() - pose_ref.translation()))
+    shape.add(gtsam.RangeFactorPose3(X(ref), X(far), dist, gtsam.noiseModel.Isotropic.Sigma(
+        1, 1e-6)))
+    return shape
+
+
 def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, prob: GraphProblem
                     ) -> list[dict[str, float]]:
     """1-sigma focal (px), rotation (deg) and position (m) per camera from gtsam.Marginals.
 
-    Rotation and position are the largest axis of the world-frame covariance (the body-frame
-    block rotated by the camera's orientation). Returns NaN sigmas if gtsam cannot invert.
+    Rotation and position are relative to the reference camera with the scale fixed (the rig's
+    shape, see :func:`_shape_graph`), as the largest axis of the world-frame covariance; the
+    reference camera gets the smallest value of the others. NaN if gtsam cannot invert.
     """
-    out = []
+    nan = dict(focal=np.nan, rotation=np.nan, position=np.nan)
     try:
-        marg = gtsam.Marginals(graph, values)
+        marg = gtsam.Marginals(_shape_graph(graph, values, prob), values)
     except RuntimeError as exc:
         log.warning("marginal covariances unavailable: %s", exc)
-        return [dict(focal=np.nan, rotation=np.nan, position=np.nan) for _ in prob.cameras]
+        return [dict(nan) for _ in prob.cameras]
+    out = []
     for c in range(len(prob.cameras)):
         cov = marg.marginalCovariance(X(c))
         R_wc = values.atPose3(X(c)).rotation().matrix()
@@ -339,6 +367,10 @@ def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pro
         kc = marg.marginalCovariance(K(c))
         f_var = kc[0, 0] if prob.model == "f" else 0.5 * (kc[0, 0] + kc[1, 1])
         out.append(dict(focal=float(np.sqrt(f_var)),
-                        rotation=float(np.degrees(np.sqrt(np.linalg.eigvalsh(rot)[-1]))),
-                        position=float(np.sqrt(np.linalg.eigvalsh(pos)[-1]))))
+                        rotation=float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(rot)[-1], 0)))),
+                        position=float(np.sqrt(max(np.linalg.eigvalsh(pos)[-1], 0)))))
+    ref = prob.reference
+    for key in ("rotation", "position"):
+        vals = [o[key] for c, o in enumerate(out) if c != ref]
+        out[ref][key] = float(np.min(vals)) if vals else np.nan
     return out

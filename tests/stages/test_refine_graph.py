@@ -1,0 +1,195 @@
+"""Stage V factor graph: each term, the gauge, recovery at zero noise, robustness, marginals."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.symbol_shorthand import K, P, X
+from refine_scene import make_scene, perturb
+
+from cascalib.calibration import Calibration
+from cascalib.errors import RefinementFailed
+from cascalib.geometry import rotation_angle_deg, umeyama
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.association import Association
+from cascalib.stages.refine import _make_problem, solve
+from cascalib.stages.refine_config import RefineConfig
+from cascalib.stages.refine_graph import (
+    _gauge_noise,
+    build_graph,
+    initial_values,
+    marginal_sigmas,
+    optimize,
+    unpack,
+)
+
+
+def _truth_association(scene, cams, n: int, stride: int = 1) -> Association:
+    """Groups from the true joints (exact association), observed by every camera."""
+    times = np.arange(0, n * stride, stride)
+    X3 = scene.joints[times]  # (T, P, 26, 3)
+    obs = np.stack([np.concatenate([cam.project(X3), np.full(X3.shape[:-1] + (1,), 0.9)], -1)
+                    for cam in scene.truth], axis=2)  # (T, P, C, 26, 3)
+    n_t, n_p = obs.shape[:2]
+    obs = obs.reshape(n_t * n_p, len(cams), 26, 3)
+    tracks = np.tile(np.arange(n_p), n_t)
+    ground = X3[..., CANONICAL_INDEX["mid_hip"], :2].reshape(-1, 2)
+    return Association(np.repeat(times.astype(float), n_p), obs, tracks, ground)
+
+
+def _problem(scene, cams, cfg, n=20, **kw):
+    assoc = _truth_association(scene, cams, n, stride=3)
+    return _make_problem(assoc, cams, cfg, height=float(scene.heights.mean()),
+                         n_persons=len(scene.heights), reference=0, **kw)
+
+
+def _rig_errors(est, truth) -> tuple[float, float, float]:
+    rel = max(rotation_angle_deg((est[i].R @ est[j].R.T) @ (truth[i].R @ truth[j].R.T).T)
+              for i in range(len(truth)) for j in range(i + 1, len(truth)))
+    c_e = np.array([c.center for c in est])
+    c_t = np.array([c.center for c in truth])
+    s, R, t = umeyama(c_e, c_t)
+    pos = np.linalg.norm(s * c_e @ R.T + t - c_t, axis=1).max()
+    focal = max(abs(e.focal / g.focal - 1) for e, g in zip(est, truth, strict=True))
+    return rel, pos, focal
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(n_frames=80, n_persons=3, noise_px=0.0)
+
+
+def test_zero_noise_recovers_perturbed_rig(scene):
+    cfg = RefineConfig(use_bones=False)
+    start = perturb(scene.truth, rot_deg=2.0, pos_m=0.2, focal_rel=0.04)
+    prob = _problem(scene, list(start), cfg)
+    assert prob.sigma_px > 5 * cfg.sigma_px  # graduated: starts at the initial residual spread
+    cams, _, info, _, _ = solve(prob, cfg, max_stages=8)
+    rel, pos, focal = _rig_errors(cams, list(scene.truth))
+    r0, p0, f0 = _rig_errors(list(start), list(scene.truth))
+    assert r0 > 1.0 and p0 > 0.05 and f0 > 0.03  # the start really is off
+    # zero noise: only the body priors' model error (head at 1.0 vs 0.97 H) is left
+    assert rel < 0.01 and pos < 0.003 and focal < 1e-4
+
+
+def test_reprojection_factor_matches_camera_projection(scene):
+    cfg = RefineConfig()
+    prob = _problem(scene, list(scene.truth), cfg, n=2)
+    values = initial_values(prob)
+    cam = scene.truth.cameras[1]
+    X3 = prob.points0[0, 0]
+    factor = gtsam.GeneralSFMFactor2Cal3f(cam.project(X3) + [3.0, 4.0],
+                                          gtsam.noiseModel.Isotropic.Sigma(2, 1.0),
+                                          X(1), P(0), K(1))
+    # the whitened error of a 5 px offset at sigma 1 is 0.5 * 5^2
+    assert factor.error(values) == pytest.approx(12.5, rel=1e-6)
+
+
+def test_gauge_prior_is_tight_on_world_yaw_and_loose_on_tilt(scene):
+    cam = scene.truth.cameras[0]
+    noise = _gauge_noise(cam, RefineConfig())
+    prior = gtsam.PriorFactorPose3(X(0), gtsam.Pose3(gtsam.Rot3(cam.R.T), cam.center), noise)
+
+    def cost(axis_world: np.ndarray, angle_deg: float) -> float:
+        v = gtsam.Values()
+        dR = gtsam.Rot3.Rodrigues(axis_world * np.radians(angle_deg))
+        v.insert(X(0), gtsam.Pose3(dR.compose(gtsam.Rot3(cam.R.T)), cam.center))
+        return prior.error(v)
+
+    yaw = cost(np.array([0.0, 0, 1]), 0.01)  # 1 sigma of yaw
+    tilt = cost(np.array([1.0, 0, 0]), 10.0)  # 1 sigma of tilt
+    assert yaw == pytest.approx(0.5, rel=0.05)
+    assert tilt == pytest.approx(0.5, rel=0.05)
+
+
+def test_ground_and_height_priors_fix_plane_and_scale(scene):
+    """Start from a rig scaled by 1.2 and tilted: the body priors must bring both back."""
+    truth = list(scene.truth)
+    s = 1.2
+    tilt = gtsam.Rot3.Rodrigues(np.radians([3.0, 0, 0])).matrix()
+    start = []
+    for c in truth:
+        R = c.R @ tilt.T
+        start.append(c.with_(R=R, t=-R @ (tilt @ c.center * s)))
+    cfg = RefineConfig(use_bones=False, gauge_tilt_sigma_deg=30.0, gauge_z_sigma_m=5.0)
+    prob = _problem(scene, start, cfg)
+    values, _ = optimize(build_graph(prob, cfg), initial_values(prob), cfg)
+    cams, pts = unpack(values, prob)
+    z_true = np.array([c.center[2] for c in truth])
+    z_est = np.array([c.center[2] for c in cams])
+    # exact people: the scale error is the height-prior model error, well below 20 %
+    assert np.abs(z_est / z_true - 1).max() < 0.04
+    up = np.array([c.R[:, 2] for c in cams])  # no camera should keep the 3 degree tilt
+    up_true = np.array([c.R[:, 2] for c in truth])
+    tilt_err = np.degrees(np.arccos(np.clip((up * up_true).sum(1), -1, 1)))
+    assert tilt_err.max() < 0.5
+
+
+def test_bone_factors_pull_to_targets(scene):
+    cfg = RefineConfig()
+    prob = _problem(scene, list(scene.truth), cfg, n=4)
+    prob.bone_lengths[:] = 0.5  # absurd targets: with tight bones some limbs must move
+    values, _ = optimize(build_graph(prob, cfg), initial_values(prob), cfg)
+    _, pts = unpack(values, prob)
+    b = prob.bones
+    before = np.linalg.norm(prob.points0[:, b[:, 0]] - prob.points0[:, b[:, 1]], axis=-1)
+    after = np.linalg.norm(pts[:, b[:, 0]] - pts[:, b[:, 1]], axis=-1)
+    assert np.nanmean(np.abs(after - 0.5)) < 0.8 * np.nanmean(np.abs(before - 0.5))
+
+
+def test_robust_kernel_ignores_outliers():
+    scene = make_scene(n_frames=80, n_persons=3, noise_px=0.5, outlier_rate=0.05, seed=3)
+    start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02, seed=4)
+    truth_assoc = _truth_association(scene, list(start), 20, stride=3)
+    rng = np.random.default_rng(0)
+    obs = truth_assoc.obs.copy()
+    obs[..., :2] += rng.normal(0, 0.5, obs[..., :2].shape)
+    bad = rng.random(obs.shape[:-1]) < 0.05
+    obs[bad, :2] += rng.uniform(40, 120, (bad.sum(), 2)) * rng.choice([-1, 1], (bad.sum(), 2))
+    assoc = Association(truth_assoc.times, obs, truth_assoc.tracks, truth_assoc.ground)
+    errs = {}
+    for kernel, k in (("huber", 1.345), ("huber", 1e6)):  # k = 1e6: plain least squares
+        cfg = RefineConfig(use_bones=False, robust=kernel, robust_k=k, sigma_px=0.5)
+        prob = _make_problem(assoc, list(start), cfg, height=float(scene.heights.mean()),
+                             n_persons=3, reference=0)
+        prob.sigma_px = 0.5
+        values, _ = optimize(build_graph(prob, cfg), initial_values(prob), cfg)
+        errs[k] = _rig_errors(unpack(values, prob)[0], list(scene.truth))
+    assert errs[1.345][0] < 0.05 and errs[1.345][2] < 0.002
+    assert errs[1.345][0] < 0.5 * errs[1e6][0]
+
+
+def test_marginal_sigmas_shrink_with_more_data():
+    scene = make_scene(n_frames=120, n_persons=3, noise_px=1.0, seed=5)
+    cfg = RefineConfig(use_bones=False, sigma_px=1.0)
+    sig = {}
+    for n in (8, 32):
+        prob = _problem(scene, list(scene.truth), cfg, n=n)
+        graph = build_graph(prob, cfg)
+        values, _ = optimize(graph, initial_values(prob), cfg)
+        sig[n] = marginal_sigmas(graph, values, prob)
+    for a, b in zip(sig[8], sig[32], strict=True):
+        assert b["focal"] < 0.75 * a["focal"]
+        assert b["rotation"] < 0.75 * a["rotation"] or b["rotation"] < 2e-3
+        assert b["position"] < 0.75 * a["position"] or b["position"] < 2e-3
+    assert 0 < sig[32][1]["focal"] < 5.0  # px, for f ~ 1200 and 1 px noise
+
+
+def test_no_people_on_the_ground_is_refused(scene):
+    cfg = RefineConfig(joints=("neck", "left_shoulder", "right_shoulder", "mid_hip"))
+    prob = _problem(scene, list(scene.truth), cfg, n=3)
+    with pytest.raises(RefinementFailed, match="ground plane and the scale"):
+        build_graph(prob, cfg)
+
+
+def test_calibration_roundtrip_types(scene):
+    cfg = RefineConfig()
+    prob = _problem(scene, list(scene.truth), cfg, n=2)
+    cams, pts = unpack(initial_values(prob), prob)
+    for a, b in zip(cams, scene.truth, strict=True):
+        np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+        np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+        np.testing.assert_allclose(a.K, b.K, atol=1e-9)
+    np.testing.assert_allclose(pts, prob.points0, atol=1e-12)
+    assert isinstance(Calibration(cams), Calibration)
