@@ -21,7 +21,8 @@ if TYPE_CHECKING:
 
 from api_schemas import JobOptions
 
-__all__ = ["ZipLimits", "is_zip", "safe_extract", "read_camera", "per_camera", "build_config"]
+__all__ = ["ZipLimits", "is_zip", "safe_extract", "read_camera", "per_camera", "build_config",
+           "check_session", "zip_limits"]
 
 #: Names allowed for a member of an uploaded zip (after dropping its folders).
 _MEMBER_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,200}$")
@@ -34,6 +35,12 @@ class ZipLimits:
     max_members: int
     max_total_bytes: int
     max_ratio: float
+
+
+def zip_limits(settings: Any) -> ZipLimits:
+    """The zip limits of the service settings."""
+    return ZipLimits(settings.max_zip_members, settings.max_unzipped_bytes,
+                     settings.max_zip_ratio)
 
 
 def is_zip(path: Path) -> bool:
@@ -156,6 +163,25 @@ def read_camera(path: Path, camera: str, options: JobOptions) -> Tracks:
     if tracks.n_detections == 0:
         raise InputError("the file holds no detections", file=str(path), camera=camera)
     return tracks
+
+
+def check_session(tracks: list[Tracks]) -> None:
+    """What the cascade needs of the whole session, checked before a job is accepted.
+
+    Raises
+    ------
+    InputError
+        Fewer than two cameras, or a camera without image size or frame rate.
+    """
+    if len(tracks) < 2:
+        raise InputError(f"need at least two cameras, got {len(tracks)}", field="files")
+    for t in tracks:
+        if t.image_size is None:
+            raise InputError("image size unknown: give image_size in the options",
+                             camera=t.camera, field="options.image_size")
+        if t.fps is None and t.timestamps is None:
+            raise InputError("frame rate unknown: give fps in the options", camera=t.camera,
+                             field="options.fps")
 
 
 def build_config(options: JobOptions) -> Any:

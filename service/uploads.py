@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import re
 import shutil
 import tempfile
@@ -26,11 +27,20 @@ from api_schemas import InvalidParam, JobOptions
 from cascalib.errors import CascalibError
 from service.core.config import Settings
 from service.core.problems import ProblemError, from_cascalib
-from service.inputs import ZipLimits, build_config, is_zip, read_camera, safe_extract
+from service.inputs import (
+    build_config,
+    check_session,
+    is_zip,
+    read_camera,
+    safe_extract,
+    zip_limits,
+)
 from service.store import StoredFile, sha256_file
 
 __all__ = ["Submission", "receive_submission", "validate_submission", "FILES_FIELD",
            "OPTIONS_FIELD"]
+
+log = logging.getLogger(__name__)
 
 FILES_FIELD = "files"
 OPTIONS_FIELD = "options"
@@ -197,8 +207,8 @@ def validate_submission(sub: Submission, settings: Settings) -> None:
         errors = [InvalidParam(message=e["msg"], field=".".join(
             ["options.config", *(str(p) for p in e["loc"])])) for e in exc.errors()]
         raise ProblemError(422, "invalid calibration settings", errors=errors) from None
-    limits = ZipLimits(settings.max_zip_members, settings.max_unzipped_bytes,
-                       settings.max_zip_ratio)
+    limits = zip_limits(settings)
+    tracks = []
     with tempfile.TemporaryDirectory(dir=sub.folder) as tmp:
         work = Path(tmp)
         for f in sub.files:
@@ -206,8 +216,16 @@ def validate_submission(sub: Submission, settings: Settings) -> None:
             try:
                 if is_zip(path):
                     path = safe_extract(path, work / f.role, limits, file=f.client_name or f.role)
-                read_camera(path, f.role, sub.options)
+                tracks.append(read_camera(path, f.role, sub.options))
             except CascalibError as exc:
                 raise _relocate(exc, sub, work) from None
             except ImportError as exc:
                 raise ProblemError(503, f"keypoint readers unavailable: {exc}") from None
+            except Exception as exc:  # a reader bug must not become a 500 for a bad upload
+                log.warning("reader crashed on %s", f.client_name, exc_info=True)
+                raise _bad(f"cannot read the file as keypoints ({type(exc).__name__})",
+                           field=FILES_FIELD, file=f.client_name, camera=f.role) from None
+    try:
+        check_session(tracks)
+    except CascalibError as exc:
+        raise from_cascalib(exc) from None

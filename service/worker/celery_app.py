@@ -68,6 +68,7 @@ def create_celery(settings: Settings) -> Celery:
 
     @celery.task(name=TASK_NAME)  # type: ignore[untyped-decorator]
     def run_job_task(job_id: str) -> str | None:
+        from service.inputs import zip_limits
         from service.worker.runner import execute_claimed
 
         store = _worker_store(settings)
@@ -76,7 +77,8 @@ def create_celery(settings: Settings) -> Celery:
             attempt = st.claim_job(session, job_id=job_id, worker=worker)
         if attempt is None:
             return None  # duplicate message, or the job was cancelled meanwhile
-        return execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds)
+        return execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
+                               limits=zip_limits(settings))
 
     return celery
 

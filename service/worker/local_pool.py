@@ -52,6 +52,7 @@ def _die_with_parent() -> None:
 
 def _child_main(job_id: str, attempt: int, settings_values: dict[str, Any]) -> None:
     """Entry point of a worker process (runs one claimed job, then exits)."""
+    from service.inputs import zip_limits
     from service.worker.runner import execute_claimed
 
     _die_with_parent()
@@ -59,7 +60,8 @@ def _child_main(job_id: str, attempt: int, settings_values: dict[str, Any]) -> N
     settings = Settings(**settings_values)
     store = Store(settings.sqlalchemy_url, settings.data_dir)
     try:
-        execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds)
+        execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
+                        limits=zip_limits(settings))
     finally:
         store.dispose()
 

@@ -20,7 +20,15 @@ from typing import Any
 from api_schemas import RESULT_FORMATS, JobOptions
 from cascalib.errors import CascalibError
 from service import store as st
-from service.inputs import ZipLimits, build_config, is_zip, read_camera, safe_extract
+from service.inputs import (
+    ZipLimits,
+    build_config,
+    check_session,
+    is_zip,
+    read_camera,
+    safe_extract,
+    zip_limits,
+)
 from service.store import Store, StoredFile, sha256_file
 
 __all__ = ["JobCancelled", "run_job", "execute_claimed"]
@@ -34,18 +42,35 @@ class JobCancelled(Exception):
     """The job was cancelled (or taken away from this worker) while it ran."""
 
 
-def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits) -> list[Any]:
+class _Names:
+    """Server paths of a job's inputs -> the client's file names (for error messages)."""
+
+    def __init__(self, job_dir: Path) -> None:
+        self.job_dir = job_dir
+        self.paths: dict[str, str] = {}
+
+    def clean(self, text: str) -> str:
+        for server, client in sorted(self.paths.items(), key=lambda kv: -len(kv[0])):
+            text = text.replace(server, client)
+        return text.replace(str(self.job_dir) + "/", "")
+
+
+def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
+                 names: _Names) -> list[Any]:
     options = JobOptions.model_validate(job.options)
     tracks: list[Any] = []
     for f in (f for f in job.files if f.kind == "input"):
         path = job_dir / f.path
+        names.paths[str(path)] = f.client_name or f.role
         if sha256_file(path) != f.sha256:
             raise CascalibError("stored input changed on disk (checksum mismatch)",
                                 file=f.client_name, camera=f.role)
         if is_zip(path):
             path = safe_extract(path, work / f"cam_{len(tracks)}", limits,
                                 file=f.client_name or f.role)
+            names.paths[str(path)] = f.client_name or f.role
         tracks.append(read_camera(path, f.role, options))
+    check_session(tracks)
     return tracks
 
 
@@ -53,21 +78,24 @@ def _save_outputs(result: Any, job_dir: Path) -> list[StoredFile]:
     tmp = job_dir / "outputs.partial"
     shutil.rmtree(tmp, ignore_errors=True)
     saved = result.save(tmp, formats=RESULT_FORMATS)
+    # Roles are the library's names for what it wrote ("calibration:json", "report", ...);
+    # files it did not name (the rest of a COLMAP folder, report plots) get "file:<path>".
+    roles = {Path(p).resolve().relative_to(tmp.resolve()): str(role)
+             for role, p in dict(saved).items()}
     final = job_dir / "outputs"
     shutil.rmtree(final, ignore_errors=True)
     tmp.rename(final)
-    roles = {Path(p).resolve(): str(role) for role, p in dict(saved).items()}
     outputs = []
     for path in sorted(p for p in final.rglob("*") if p.is_file()):
-        rel = path.relative_to(job_dir)
-        role = roles.get((tmp / path.relative_to(final)).resolve(), str(rel.relative_to("outputs")))
-        outputs.append(StoredFile(role=role[:64], path=str(rel), size=path.stat().st_size,
-                                  sha256=sha256_file(path)))
+        rel = path.relative_to(final)
+        role = roles.get(rel, f"file:{rel}")
+        outputs.append(StoredFile(role=role[:64], path=str(Path("outputs") / rel),
+                                  size=path.stat().st_size, sha256=sha256_file(path)))
     return outputs
 
 
 def run_job(job_id: str, store: Store, progress: Progress, *,
-            limits: ZipLimits | None = None) -> list[StoredFile]:
+            limits: ZipLimits | None = None, names: _Names | None = None) -> list[StoredFile]:
     """Calibrate one job from its stored inputs; returns the output files written.
 
     Raises
@@ -81,24 +109,23 @@ def run_job(job_id: str, store: Store, progress: Progress, *,
     """
     from service.core.config import Settings
 
-    if limits is None:
-        s = Settings()
-        limits = ZipLimits(s.max_zip_members, s.max_unzipped_bytes, s.max_zip_ratio)
+    limits = limits or zip_limits(Settings())
     with store.session() as session:
         job = st.find_job(session, job_id=job_id, owner=None)
         if job is None:
             raise JobCancelled(f"job {job_id} no longer exists")
         options = JobOptions.model_validate(job.options)
         job_dir = store.job_dir(job_id)
+        names = names or _Names(job_dir)
         progress("loading", 0.0)
-        with tempfile.TemporaryDirectory(dir=job_dir) as tmp:
-            tracks = _load_tracks(job, job_dir, Path(tmp), limits)
     config = build_config(options)
     from cascalib.pipeline import (  # type: ignore[import-not-found,unused-ignore]
         calibrate,
     )
 
-    result = calibrate(tracks, config, progress=progress)
+    with tempfile.TemporaryDirectory(dir=job_dir) as tmp:
+        tracks = _load_tracks(job, job_dir, Path(tmp), limits, names)
+        result = calibrate(tracks, config, progress=progress)
     progress("saving", 1.0)
     return _save_outputs(result, job_dir)
 
@@ -145,29 +172,24 @@ class _Reporter:
         self._thread.join(timeout=5)
 
 
-def _client_message(exc: CascalibError, store: Store, job_id: str) -> str:
-    """The error text without server paths."""
-    text = str(exc)
-    return text.replace(str(store.job_dir(job_id)) + "/", "").replace(str(store.data_dir), "")
-
-
 def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float,
                     limits: ZipLimits | None = None) -> str:
     """Run a job this worker has claimed and record how it ended; returns the final status."""
     status, error, outputs = st.FAILED, None, []
+    names = _Names(store.job_dir(job_id))
     with _Reporter(store, job_id, attempt, heartbeat) as reporter:
         try:
-            outputs = run_job(job_id, store, reporter, limits=limits)
+            outputs = run_job(job_id, store, reporter, limits=limits, names=names)
             status = st.SUCCEEDED
         except JobCancelled:
             status = st.CANCELLED
         except CascalibError as exc:
-            error = _client_message(exc, store, job_id)
+            error = names.clean(str(exc))
         except ImportError as exc:
             error = f"the calibration pipeline is not available in this installation ({exc})"
         except Exception as exc:
             log.exception("job %s attempt %d crashed", job_id, attempt)
-            error = f"internal error: {type(exc).__name__}: {exc}"[:2000]
+            error = names.clean(f"internal error: {type(exc).__name__}: {exc}")[:2000]
     if status == st.CANCELLED:
         log.info("job %s stopped: cancelled", job_id)
         return status

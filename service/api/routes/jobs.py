@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import io
+import zipfile
+from pathlib import Path as FsPath
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Header, Path, Query, Request, Response
@@ -101,27 +104,44 @@ def read_job(job_id: JobId, session: SessionDep, owner: TokenDep) -> JobPublic:
     return to_public(_job(session, owner, job_id))
 
 
-def _serve(state: StateDep, job: Job, roles: tuple[str, ...], suffixes: tuple[str, ...],
-           media_type: str, what: str) -> FileResponse:
+def _outputs(job: Job, what: str) -> list[JobFile]:
     if job.status != "succeeded":
         detail = f"job is {job.status}" + (f": {job.error}" if job.error else "")
         raise ProblemError(409, f"no {what}: {detail}")
-    outputs = [f for f in job.files if f.kind == "output"]
-    found: JobFile | None = next((f for r in roles for f in outputs if f.role == r), None)
-    found = found or next((f for s in suffixes for f in outputs if f.path.endswith(s)), None)
+    return [f for f in job.files if f.kind == "output"]
+
+
+def _checked(state: StateDep, job: Job, f: JobFile, what: str) -> FsPath:
+    path = state.store.job_dir(job.id) / f.path
+    if not path.is_file() or sha256_file(path) != f.sha256:
+        raise ProblemError(500, f"the stored {what} is damaged")
+    return path
+
+
+def _serve(state: StateDep, job: Job, roles: tuple[str, ...], media_type: str,
+           what: str) -> Response:
+    """One output file by role; or, for a format written as a folder, a zip of the folder."""
+    outputs = _outputs(job, what)
+    found = next((f for r in roles for f in outputs if f.role == r), None)
     if found is None:
         raise ProblemError(404, f"this job produced no {what}")
-    path = state.store.job_dir(job.id) / found.path
-    if not path.is_file() or sha256_file(path) != found.sha256:
-        raise ProblemError(500, f"the stored {what} is damaged")
+    path = _checked(state, job, found, what)
+    folder = FsPath(found.path).parent
+    if folder.name in FOLDER_FORMATS:  # colmap/, easymocap/: several files
+        members = [f for f in outputs if FsPath(f.path).parent == folder]
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+            for f in members:
+                zf.write(_checked(state, job, f, what), FsPath(f.path).name)
+        return Response(buf.getvalue(), media_type="application/zip", headers={
+            "Content-Disposition": f'attachment; filename="{job.id}-{folder.name}.zip"'})
     return FileResponse(path, media_type=media_type, filename=f"{job.id}-{path.name}",
                         headers={"ETag": f'"{found.sha256}"'})
 
 
+FOLDER_FORMATS = ("colmap", "easymocap")
 _MEDIA = {"json": "application/json", "toml": "application/toml", "opencv": "application/yaml",
-          "colmap": "text/plain", "easymocap": "application/yaml"}
-_SUFFIX = {"json": "calibration.json", "toml": ".toml", "opencv": ".yml", "colmap": ".txt",
-           "easymocap": "intri.yml"}
+          "colmap": "application/zip", "easymocap": "application/zip"}
 _CONFLICT: dict[int | str, dict[str, Any]] = {
     409: {"model": Problem, "description": "Job not succeeded (yet)"}}
 
@@ -129,39 +149,30 @@ _CONFLICT: dict[int | str, dict[str, Any]] = {
 @router.get("/{job_id}/result", responses={**_ERRORS, **_CONFLICT})
 def read_result(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
                 format: Annotated[Literal["json", "toml", "opencv", "colmap", "easymocap"],
-                                  Query(description="Calibration file format.")] = "json",
-                ) -> FileResponse:
+                                  Query(description="Calibration file format (colmap and "
+                                        "easymocap come as a zip of their folder).")] = "json",
+                ) -> Response:
     """The calibration: native JSON, or another supported format."""
     assert format in RESULT_FORMATS
-    return _serve(state, _job(session, owner, job_id), (format,), (_SUFFIX[format],),
+    return _serve(state, _job(session, owner, job_id), (f"calibration:{format}",),
                   _MEDIA[format], f"{format} calibration")
 
 
 @router.get("/{job_id}/report", responses={**_ERRORS, **_CONFLICT})
 def read_report(job_id: JobId, session: SessionDep, owner: TokenDep,
-                state: StateDep) -> FileResponse:
+                state: StateDep) -> Response:
     """The HTML report of the calibration."""
-    return _serve(state, _job(session, owner, job_id), ("report", "html"), (".html",),
-                  "text/html", "report")
+    return _serve(state, _job(session, owner, job_id), ("report",), "text/html", "report")
 
 
 @router.get("/{job_id}/poses", responses={**_ERRORS, **_CONFLICT})
-def read_poses(job_id: JobId, session: SessionDep, owner: TokenDep,
-               state: StateDep) -> FileResponse:
-    """The 3D poses (JSON when the job wrote it, else NumPy .npz)."""
-    job = _job(session, owner, job_id)
-    json_first = _serve_or_none(state, job, ("poses_json",), ("poses.json",), "application/json")
-    return json_first or _serve(state, job, ("poses", "poses_npz"), (".npz",),
-                                "application/octet-stream", "poses")
-
-
-def _serve_or_none(state: StateDep, job: Job, roles: tuple[str, ...], suffixes: tuple[str, ...],
-                   media: str) -> FileResponse | None:
-    if job.status != "succeeded":
-        return None
-    has = any(f.kind == "output" and (f.role in roles or f.path.endswith(suffixes))
-              for f in job.files)
-    return _serve(state, job, roles, suffixes, media, "poses") if has else None
+def read_poses(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
+               format: Annotated[Literal["json", "npz"], Query(
+                   description="JSON, or NumPy .npz arrays.")] = "json") -> Response:
+    """The 3D poses of the people (per reference frame, person and joint)."""
+    media = "application/json" if format == "json" else "application/octet-stream"
+    return _serve(state, _job(session, owner, job_id), (f"poses:poses.{format}",), media,
+                  "poses")
 
 
 @router.delete("/{job_id}", responses={**_ERRORS, 200: {"model": JobPublic},

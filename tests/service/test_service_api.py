@@ -1,0 +1,247 @@
+"""The HTTP API against a real server, on SQLite, PostgreSQL and Celery + Redis."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import time
+
+import httpx
+import pytest
+from service_helpers import (
+    MAX_FILES,
+    MAX_UPLOAD,
+    OPTIONS,
+    TOKENS,
+    Deployment,
+    camera_zip,
+    needs_pipeline,
+    openpose_frames,
+    submit,
+    wait_finished,
+    zip_bytes,
+)
+
+PROBLEM = "application/problem+json"
+
+
+def stored_jobs(dep: Deployment) -> set[str]:
+    jobs = dep.data_dir / "jobs"
+    return {p.name for p in jobs.iterdir()} if jobs.exists() else set()
+
+
+def test_health_ready_metrics_openapi(deployment: Deployment) -> None:
+    with deployment.client(None) as c:
+        assert c.get("/healthz").json()["status"] == "ok"
+        ready = c.get("/readyz")
+        assert ready.status_code == 200, ready.text
+        assert ready.json()["checks"] == {"database": "ok", "workers": "ok"}
+        text = c.get("/metrics").text
+        assert 'cascalib_http_requests_total{method="GET",route="/readyz",status="200"}' in text
+        assert 'cascalib_jobs{status="queued"}' in text
+        spec = c.get("/openapi.json").json()
+    assert {"/v1/jobs", "/v1/jobs/{job_id}", "/v1/jobs/{job_id}/result", "/v1/jobs/{job_id}/report",
+            "/v1/jobs/{job_id}/poses"} <= set(spec["paths"])
+    assert "multipart/form-data" in spec["paths"]["/v1/jobs"]["post"]["requestBody"]["content"]
+
+
+def test_auth_required_and_jobs_private(deployment: Deployment, token: str) -> None:
+    with deployment.client(None) as anon:
+        r = anon.get("/v1/jobs")
+        assert r.status_code == 401 and r.headers["content-type"] == PROBLEM
+        assert r.headers["www-authenticate"] == "Bearer"
+        assert submit(anon).status_code == 401
+    with deployment.client("not-a-token") as bad:
+        assert bad.get("/v1/jobs").status_code == 401
+    with deployment.client(token) as owner:
+        r = submit(owner)
+        assert r.status_code == 202, r.text
+        job_id = r.json()["id"]
+        assert owner.get(f"/v1/jobs/{job_id}").status_code == 200
+    other = TOKENS[(TOKENS.index(token) + 30) % len(TOKENS)]
+    with deployment.client(other) as intruder:
+        assert intruder.get(f"/v1/jobs/{job_id}").status_code == 404
+        assert intruder.get(f"/v1/jobs/{job_id}/result").status_code == 404
+        assert intruder.delete(f"/v1/jobs/{job_id}").status_code == 404
+        assert job_id not in [j["id"] for j in intruder.get("/v1/jobs").json()["data"]]
+    with deployment.client(token) as owner:
+        assert owner.get(f"/v1/jobs/{job_id}").json()["status"] != "cancelled"
+
+
+def _bomb() -> bytes:
+    return zip_bytes({"frame_000000000000_keypoints.json": b"{" + b" " * (40 * 2**20) + b"}"})
+
+
+def _truncated_zip() -> bytes:
+    return camera_zip(0)[: len(camera_zip(0)) // 2]
+
+
+BAD_UPLOADS = {
+    # kind: (files, options, status, field that the problem must name)
+    "wrong format": ([("cam0.json", b"\x89PNG\r\n\x1a\n" + b"\0" * 64)], OPTIONS, 422, None),
+    "text not keypoints": ([("cam0.csv", b"hello,world\n1,2\n")], OPTIONS, 422, None),
+    "truncated json": ([("cam0.json", openpose_frames(1)[0][:50])], OPTIONS, 422, None),
+    "truncated zip": ([("cam0.zip", _truncated_zip())], OPTIONS, 422, "files"),
+    "zip bomb": ([("cam0.zip", _bomb())], OPTIONS, 422, "files"),
+    "path traversal name": ([("../../etc/cam0.json", camera_zip())], OPTIONS, 422, "files"),
+    "backslash name": ([("..\\cam0.zip", camera_zip())], OPTIONS, 422, "files"),
+    "hidden name": ([(".cam0.zip", camera_zip())], OPTIONS, 422, "files"),
+    "traversal in zip": ([("cam0.zip", zip_bytes({"../evil.json": openpose_frames(1)[0]}))],
+                         OPTIONS, 422, "files"),
+    "absolute in zip": ([("cam0.zip", zip_bytes({"/tmp/evil.json": openpose_frames(1)[0]}))],
+                        OPTIONS, 422, "files"),
+    "empty file": ([("cam0.json", b"")], OPTIONS, 422, "files"),
+    "duplicate camera": ([("cam0.zip", camera_zip()), ("cam0.json", b"{}")], OPTIONS, 422,
+                         "files"),
+    "unknown option": (None, {**OPTIONS, "imagesize": "1x1"}, 422, "options.imagesize"),
+    "bad image size": (None, {**OPTIONS, "image_size": "big"}, 422, "options.image_size"),
+    "negative fps": (None, {**OPTIONS, "fps": -3}, 422, "options.fps"),
+    "options not json": (None, "{image_size: 1920x1080", 422, "options"),
+    "options not object": (None, "[1, 2]", 422, "options"),
+    "fps for unknown camera": (None, {**OPTIONS, "fps": {"camX": 30}}, 422, "options.fps.camX"),
+    "unknown reference camera": (None, {**OPTIONS, "reference_camera": "camZ"}, 422,
+                                 "options.reference_camera"),
+    "unknown skeleton": (None, {**OPTIONS, "skeleton": "octopus8"}, 422, None),
+    "too large": ([("cam0.zip", b"PK\x03\x04" + b"\xff" * (MAX_UPLOAD + 10))], OPTIONS, 413,
+                  None),
+    "too many files": ([(f"cam{i}.zip", b"x") for i in range(MAX_FILES + 1)], OPTIONS, 413,
+                       "files"),
+    "no files": ([], OPTIONS, 422, "files"),
+}
+
+
+@pytest.mark.parametrize("kind", list(BAD_UPLOADS))
+def test_bad_upload_rejected_and_nothing_stored(deployment: Deployment, client: httpx.Client,
+                                                kind: str) -> None:
+    files, options, status, field = BAD_UPLOADS[kind]
+    before = stored_jobs(deployment)
+    r = submit(client, files, options)
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"] == PROBLEM
+    body = r.json()
+    assert body["status"] == status and body["detail"]
+    assert "Traceback" not in r.text and str(deployment.data_dir) not in r.text
+    if field is not None:
+        assert field in [e.get("field") for e in body["errors"]], body
+    assert stored_jobs(deployment) == before
+    assert not list((deployment.data_dir / "staging").iterdir())
+    assert client.get("/v1/jobs").json()["count"] == 0
+
+
+def test_error_names_camera_and_client_file(client: httpx.Client) -> None:
+    good = ("cam0.zip", camera_zip(0))
+    bad = ("side_left.json", b'{"people": [{"pose_keypoints_2d": [1, 2]}]}')
+    r = submit(client, [good, bad], OPTIONS)
+    assert r.status_code == 422, r.text
+    err = r.json()["errors"][0]
+    assert err["camera"] == "side_left"
+    assert err["file"] is None or err["file"].startswith("side_left.json")
+
+
+def test_not_multipart(client: httpx.Client) -> None:
+    r = client.post("/v1/jobs", json={"options": {}})
+    assert r.status_code == 415 and r.headers["content-type"] == PROBLEM
+
+
+def test_idempotency_key(client: httpx.Client) -> None:
+    files = [("cam0.zip", camera_zip(0)), ("cam1.zip", camera_zip(1))]
+    key = {"Idempotency-Key": "retry-7f3a"}
+    first = submit(client, files, OPTIONS, key)
+    assert first.status_code == 202, first.text
+    again = submit(client, files, OPTIONS, key)
+    assert again.status_code == 202 and again.json()["id"] == first.json()["id"]
+    assert again.headers["idempotent-replayed"] == "true"
+    other = submit(client, files, {**OPTIONS, "height": 1.8}, key)
+    assert other.status_code == 422 and other.json()["errors"][0]["field"] == "Idempotency-Key"
+    # Concurrent retries of one new request: one job.
+    key2 = {"Idempotency-Key": "burst-1"}
+    with concurrent.futures.ThreadPoolExecutor(6) as pool:
+        rs = list(pool.map(lambda _: submit(client, files, OPTIONS, key2), range(6)))
+    assert {r.status_code for r in rs} == {202}
+    assert len({r.json()["id"] for r in rs}) == 1
+    assert client.get("/v1/jobs").json()["count"] == 2
+
+
+def test_job_reaches_an_end_with_a_reason(client: httpx.Client) -> None:
+    r = submit(client)
+    assert r.status_code == 202, r.text
+    body = r.json()
+    assert r.headers["location"] == body["links"]["self"] == f"/v1/jobs/{body['id']}"
+    job = wait_finished(client, body["id"])
+    assert job["status"] in ("succeeded", "failed")
+    assert job["cameras"] == ["cam0", "cam1"] and job["attempts"] == 1
+    assert job["created_at"] <= job["started_at"] <= job["finished_at"]
+    if job["status"] == "failed":
+        assert job["error"] and "Traceback" not in job["error"]
+        r = client.get(f"/v1/jobs/{body['id']}/result")
+        assert r.status_code == 409 and "failed" in r.json()["detail"]
+
+
+def test_list_paging_and_filter(client: httpx.Client) -> None:
+    ids = [submit(client).json()["id"] for _ in range(3)]
+    page = client.get("/v1/jobs", params={"limit": 2}).json()
+    assert page["count"] == 3 and len(page["data"]) == 2
+    assert [j["id"] for j in page["data"]] == ids[::-1][:2]  # newest first
+    rest = client.get("/v1/jobs", params={"limit": 2, "offset": 2}).json()
+    assert [j["id"] for j in rest["data"]] == [ids[0]]
+    final = {i: wait_finished(client, i)["status"] for i in ids}
+    for status in ("succeeded", "failed", "queued"):
+        got = client.get("/v1/jobs", params={"status": status}).json()
+        assert got["count"] == sum(s == status for s in final.values())
+    assert client.get("/v1/jobs", params={"status": "bogus"}).status_code == 422
+    assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
+
+
+def test_cancel_then_delete(deployment: Deployment, client: httpx.Client) -> None:
+    job_id = submit(client).json()["id"]
+    r = client.delete(f"/v1/jobs/{job_id}")
+    if r.status_code == 200:  # was queued or running: cancelled
+        assert r.json()["status"] == "cancelled"
+        time.sleep(1.5)  # a worker that had started it must not resurrect it
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["status"] == "cancelled" and job["finished_at"]
+        assert client.get(f"/v1/jobs/{job_id}/result").status_code == 409
+        r = client.delete(f"/v1/jobs/{job_id}")
+    assert r.status_code == 204
+    assert client.get(f"/v1/jobs/{job_id}").status_code == 404
+    assert job_id not in stored_jobs(deployment)
+
+
+def test_inputs_kept_with_checksums(deployment: Deployment, client: httpx.Client) -> None:
+    import hashlib
+
+    content = camera_zip(3)
+    job_id = submit(client, [("cam0.zip", content), ("cam1.zip", camera_zip(4))]).json()["id"]
+    stored = deployment.data_dir / "jobs" / job_id / "inputs" / "cam_0.zip"
+    assert hashlib.sha256(stored.read_bytes()).digest() == hashlib.sha256(content).digest()
+    wait_finished(client, job_id)
+    assert stored.read_bytes() == content  # still there whatever the outcome
+
+
+@needs_pipeline
+@pytest.mark.slow
+def test_full_life_cycle(deployment: Deployment, client: httpx.Client, tmp_path) -> None:
+    from cascalib.formats import load_calibration, write_tracks
+    from cascalib.simulate import simulate
+
+    scene = simulate("terrace", seed=0)
+    files = []
+    for tr in scene.tracks:
+        path = tmp_path / f"{tr.camera}.json"
+        write_tracks(tr, path, format="native-json")
+        files.append((path.name, path.read_bytes()))
+    r = submit(client, files, {"seed": 0})
+    assert r.status_code == 202, r.text
+    job = wait_finished(client, r.json()["id"], timeout=900)
+    assert job["status"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result")
+    assert result.status_code == 200
+    (tmp_path / "calibration.json").write_bytes(result.content)
+    calib = load_calibration(tmp_path / "calibration.json")
+    assert calib.names == [t.camera for t in scene.tracks]
+    assert json.loads(result.content)
+    for fmt in ("toml", "opencv", "colmap", "easymocap"):
+        assert client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt}).status_code == 200
+    report = client.get(f"/v1/jobs/{job['id']}/report")
+    assert report.status_code == 200 and "<html" in report.text.lower()
+    assert client.get(f"/v1/jobs/{job['id']}/poses").status_code == 200

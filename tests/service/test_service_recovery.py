@@ -1,0 +1,175 @@
+"""Crash recovery: no job stays ``running`` after a server or worker dies.
+
+The worker-death tests kill real processes. Where a job must be *mid-run* at the moment of the
+crash and the run itself is too short to aim at without the calibration pipeline, the database
+is put in exactly the state a crash leaves (``running``, owned by a worker that no longer
+exists, no heartbeat) and the real restart / reaper path is exercised from there.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import pytest
+from service_helpers import (
+    Deployment,
+    build_deployment,
+    needs_pipeline,
+    next_token,
+    submit,
+    wait_finished,
+)
+from sqlalchemy import create_engine, text
+
+from service.models import utcnow
+
+
+def crash_state(dep: Deployment, job_id: str, *, attempts: int, worker: str) -> None:
+    """Put a job in the state a crash leaves behind."""
+    engine = create_engine(dep.database_url.replace("postgresql://", "postgresql+psycopg://"))
+    with engine.begin() as conn:
+        conn.execute(text("UPDATE jobs SET status='running', attempts=:a, worker=:w, "
+                          "heartbeat_at=:hb, finished_at=NULL, error=NULL, stage='refine' "
+                          "WHERE id=:id"),
+                     {"a": attempts, "w": worker, "id": job_id,
+                      "hb": utcnow() - timedelta(minutes=10)})
+    engine.dispose()
+
+
+@pytest.fixture(params=["sqlite", "postgres"])
+def local_deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deployment]:
+    dep, pg = build_deployment(request.param, tmp_path, CASCALIB_MAX_ATTEMPTS="2",
+                               CASCALIB_WORKERS="1")
+    yield dep
+    dep.stop()
+    if pg:
+        pg.drop()
+
+
+def test_server_crash_requeues_then_gives_up(local_deployment: Deployment) -> None:
+    dep = local_deployment
+    token = next_token()
+    with dep.client(token) as c:
+        ids = [submit(c).json()["id"] for _ in range(2)]
+        for i in ids:
+            wait_finished(c, i)
+    assert dep.server is not None
+    dep.server.kill()  # SIGKILL: no orderly shutdown
+    crash_state(dep, ids[0], attempts=1, worker="local:deadbeef00:1")
+    crash_state(dep, ids[1], attempts=2, worker="local:deadbeef00:1")
+    dep.start_server()
+    with dep.client(token) as c:
+        retried = wait_finished(c, ids[0])
+        given_up = wait_finished(c, ids[1])
+    assert retried["attempts"] == 2 and retried["status"] in ("succeeded", "failed")
+    assert "server stopped" not in (retried["error"] or "")
+    assert given_up["status"] == "failed" and given_up["attempts"] == 2
+    assert given_up["error"] == ("the server stopped while the job was running; "
+                                 "gave up after 2 attempt(s)")
+
+
+def _job_processes(server_pid: int) -> list[int]:
+    """Worker processes (multiprocessing spawn children) of the server."""
+    pids = []
+    for task in Path(f"/proc/{server_pid}/task").iterdir():
+        try:
+            pids += [int(p) for p in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    out = []
+    for pid in pids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+        except OSError:
+            continue
+        if b"spawn_main" in cmd and b"resource_tracker" not in cmd:
+            out.append(pid)
+    return out
+
+
+def test_killed_worker_process_retried_then_failed(local_deployment: Deployment) -> None:
+    dep = local_deployment
+    assert dep.server is not None
+    killed: set[int] = set()
+    with dep.client(next_token()) as c:
+        job_id = submit(c).json()["id"]
+        deadline = time.monotonic() + 60
+        while len(killed) < 2 and time.monotonic() < deadline:
+            for pid in _job_processes(dep.server.popen.pid):
+                if pid not in killed:
+                    os.kill(pid, signal.SIGKILL)
+                    killed.add(pid)
+            time.sleep(0.02)
+        job = wait_finished(c, job_id)
+    assert len(killed) == 2
+    assert job["status"] == "failed" and job["attempts"] == 2
+    assert job["error"] == ("the worker process died (exit code -9); "
+                            "gave up after 2 attempt(s)")
+
+
+def test_celery_reaper_requeues_job_of_dead_worker(tmp_path: Path) -> None:
+    dep, pg = build_deployment("celery", tmp_path, CASCALIB_MAX_ATTEMPTS="3")
+    try:
+        with dep.client(next_token()) as c:
+            job_id = submit(c).json()["id"]
+            first = wait_finished(c, job_id)
+            assert first["attempts"] == 1
+            crash_state(dep, job_id, attempts=1, worker="celery:gone-host:4242")
+            # The API's reaper sees no heartbeat, re-queues and re-sends; the live worker runs it.
+            job = wait_finished(c, job_id, timeout=60)
+        assert job["attempts"] == 2, dep.logs()
+        assert job["status"] == first["status"] and job["error"] == first["error"]
+    finally:
+        dep.stop()
+        if pg:
+            pg.drop()
+
+
+def _sim_files(tmp: Path) -> list[tuple[str, bytes]]:
+    from cascalib.formats import write_tracks
+    from cascalib.simulate import simulate
+
+    files = []
+    for tr in simulate("terrace", seed=0).tracks:
+        path = tmp / f"{tr.camera}.json"
+        write_tracks(tr, path, format="native-json")
+        files.append((path.name, path.read_bytes()))
+    return files
+
+
+@needs_pipeline
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["sqlite", "celery"])
+def test_kill_worker_mid_job_then_restart(kind: str, tmp_path: Path) -> None:
+    dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_ATTEMPTS="3")
+    try:
+        with dep.client(next_token()) as c:
+            job_id = submit(c, _sim_files(tmp_path), {}).json()["id"]
+            deadline = time.monotonic() + 300
+            while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
+                assert time.monotonic() < deadline
+                time.sleep(0.2)
+            if kind == "celery":
+                for w in dep.workers:
+                    w.kill()
+                dep.workers.clear()
+                time.sleep(1)
+                dep.start_worker()
+            else:
+                assert dep.server is not None
+                dep.server.kill()
+                dep.start_server()
+            job = wait_finished(c, job_id, timeout=900)
+        assert job["status"] in ("succeeded", "failed")
+        assert job["attempts"] == 2
+        if job["status"] == "failed":
+            assert job["error"]
+    finally:
+        dep.stop()
+        if pg:
+            pg.drop()

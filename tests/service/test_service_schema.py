@@ -1,0 +1,49 @@
+"""Property-based fuzzing of every operation in the OpenAPI schema (schemathesis): whatever a
+client sends, the service answers without a 5xx and without a stack trace."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+schemathesis = pytest.importorskip("schemathesis", reason="schemathesis not installed (dev extra)")
+from hypothesis import HealthCheck, settings  # noqa: E402
+from service_helpers import Deployment, build_deployment, next_token  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def fuzzed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
+    dep, _ = build_deployment("sqlite", tmp_path_factory.mktemp("fuzz"))
+    yield dep
+    dep.stop()
+
+
+@pytest.fixture(scope="module")
+def api_schema(fuzzed: Deployment):  # type: ignore[no-untyped-def]
+    return schemathesis.openapi.from_url(fuzzed.url + "/openapi.json")
+
+
+schema = schemathesis.pytest.from_fixture("api_schema")
+TOKEN = next_token()
+
+
+@schema.parametrize()
+@settings(max_examples=12, deadline=None, derandomize=True,
+          suppress_health_check=list(HealthCheck))
+def test_no_server_error(case, fuzzed: Deployment) -> None:  # type: ignore[no-untyped-def]
+    response = case.call(headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30)
+    assert response.status_code < 500, (case.method, case.path, response.text)
+    assert "Traceback" not in response.text
+    if response.status_code >= 400:
+        ctype = response.headers.get("content-type") or [""]
+        assert ctype[0].startswith("application/problem+json"), ctype
+
+
+def test_unauthenticated_fuzz_is_401(fuzzed: Deployment) -> None:
+    import httpx
+
+    for path in ("/v1/jobs", "/v1/jobs/0123", "/v1/jobs/x/result", "/v1/jobs/x/report"):
+        assert httpx.get(fuzzed.url + path).status_code == 401
+    assert Path(fuzzed.data_dir / "jobs").is_dir()
