@@ -122,6 +122,15 @@ class Scene:
         """True canonical 3D joints at world times (s), shape (T, P, 26, 3)."""
         return joints_at(self.people, np.asarray(times, dtype=np.float64))
 
+    def reference_times(self, frames: NDArray[np.float64]) -> NDArray[np.float64]:
+        """World time (s) of (fractional) reference-camera frames, shape like ``frames``.
+
+        ``scene.joints_at(scene.reference_times(r))`` are the true poses at reference frames
+        ``r`` (e.g. to compare with stage V's poses per reference frame).
+        """
+        ref = self.clocks[0]
+        return ref.start + np.asarray(frames, dtype=np.float64) * (1 + ref.drift) / ref.fps
+
     def slot_to_person(self, camera: str) -> NDArray[np.int64]:
         """True person of each detection slot of ``camera``, shape (F_c, S_c).
 

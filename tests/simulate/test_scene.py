@@ -82,6 +82,7 @@ def test_time_offsets_match_the_frame_times():
         t = scene.frame_times(cam.name)
         # TIME CONVENTION: frame k shows reference frame time_rate * k + time_offset
         np.testing.assert_allclose(t, t_ref[0] + cam.reference_frame(k) / ref.fps, atol=1e-9)
+        np.testing.assert_allclose(scene.reference_times(cam.reference_frame(k)), t, atol=1e-9)
         np.testing.assert_allclose(tr.frame_times(), k / cam.fps)
         assert cam.fps == tr.fps
         rates.add(round(cam.time_rate, 2))
