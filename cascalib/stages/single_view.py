@@ -82,7 +82,8 @@ class SingleViewConfig(BaseModel):
     # -- upright filter -------------------------------------------------------------------
     max_bend_deg: float = Field(
         25.0, gt=0.0,
-        description="Largest (180 - knee angle) + (180 - hip angle) of the straighter side for "
+        description="Largest (180 - knee angle) + (180 - centre-line hip angle) of the "
+                    "straighter side for "
                     "a pose to count as upright (supplement Eq. supp_angle_filter; the paper "
                     "gives no threshold).")
     min_confidence: float = Field(
@@ -91,7 +92,7 @@ class SingleViewConfig(BaseModel):
         3.0, ge=0.0, description="Poses with a required joint this close to the image edge "
                                  "are treated as truncated.")
     leg_torso_ratio: tuple[float, float] = Field(
-        (1.2, 2.6), description="Accepted image ratio ankle-hip / hip-shoulder (standing: "
+        (1.2, 2.8), description="Accepted image ratio ankle-hip / hip-shoulder (standing: "
                                 "about 1.7); rejects sitting or crouching people seen "
                                 "from the front.")
     min_pixel_height: float = Field(
@@ -116,7 +117,7 @@ class SingleViewConfig(BaseModel):
         0.02, ge=0.0, description="Minimal samples whose ankles are closer than this fraction "
                                   "of the image diagonal are rejected unsolved.")
     max_detections: int = Field(
-        2000, ge=10,
+        800, ge=10,
         description="Upright detections used for the fit, picked spread over the image "
                     "(consecutive frames add little); all are classified in the end.")
     # -- model ----------------------------------------------------------------------------

@@ -36,6 +36,8 @@ F64 = NDArray[np.float64]
 _MIN_RANSAC = 6
 #: Image cells per side for spatial subsampling and for the independence clusters.
 _CELLS = 12
+#: Detections RANSAC scores its hypotheses on.
+_RANSAC_SCORE = 300
 
 
 @dataclass(frozen=True)
@@ -89,12 +91,21 @@ def _offsets(obs: Observations, ref: RefineResult) -> F64:
     return obs.offset * ref.ratio_scale[None, :] * scale[:, None]
 
 
-def _classify(model: GroundModel, obs: Observations, offsets: F64, sigma_px: float,
+def _classify(model: GroundModel, obs: Observations, offsets: F64, adaptive: bool,
               cfg: SingleViewConfig) -> tuple[NDArray[np.bool_], F64, F64]:
-    """Paper inlier test, widened to ``adaptive_inlier_sigmas`` residual s.d. for small people."""
+    """Paper inlier test, widened to ``adaptive_inlier_sigmas`` residual s.d. for small people.
+
+    The s.d. is the median absolute deviation of the upper points predicted from the raw
+    ankles (robust to outliers below one half).
+    """
     o = Observations(obs.ankle, obs.upper, offsets, obs.group)
     rel, ang = inlier_errors(model, o)
     ph = o.pixel_height()
+    sigma_px = 0.0
+    if adaptive:
+        r = model.residuals(o)[o.valid].ravel()
+        r = r[np.isfinite(r)]
+        sigma_px = float(1.4826 * np.median(np.abs(r))) if r.size else 0.0
     with np.errstate(invalid="ignore", divide="ignore"):
         adapt = cfg.adaptive_inlier_sigmas * sigma_px / ph
         ok = (rel < np.maximum(cfg.inlier_rel_error, adapt)) & (
@@ -119,16 +130,19 @@ def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleVi
     inl = np.ones(o.n, dtype=bool)
     starts: list[GroundModel] = []
     if o.n >= _MIN_RANSAC:
-        rr = ransac(o, c0, f_range=f_rng, rel_thr=cfg.inlier_rel_error,
+        # scoring hypotheses on a few hundred detections is as selective and much cheaper
+        score_set = o.take(np.sort(rng.permutation(o.n)[:_RANSAC_SCORE]))
+        rr = ransac(score_set, c0, f_range=f_rng, rel_thr=cfg.inlier_rel_error,
                     ang_thr=cfg.inlier_angle_deg, max_iterations=cfg.ransac_max_iterations,
                     min_sample_px=cfg.min_sample_spread * float(np.hypot(*c0 * 2)),
                     rng=rng, confidence=cfg.ransac_confidence)
         if not isinstance(rr, str):
             diag["ransac_iterations"] = rr.n_iterations
-            diag["ransac_inliers"] = int(rr.inliers.sum())
+            inl, _, _ = _classify(rr.model, o, o.offset, False, cfg)
+            diag["ransac_inliers"] = int(inl.sum())
             starts.append(rr.model)
-            if rr.inliers.sum() >= 3:
-                inl = rr.inliers
+            if inl.sum() < 3:
+                inl = np.ones(o.n, dtype=bool)
     else:
         m = dlt_estimate(o, c0, f_rng)
         if not isinstance(m, str):
@@ -206,8 +220,9 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
         raise EstimationFailed("no focal length in the plausible range explains the "
                                "upright persons (check the image size and the skeleton)")
     best = _robust_start(o, starts, cfg, image_size)
-    for _ in range(3):  # re-classify with the noise level of the refined model, refit
-        inl, _, _ = _classify(best.model, o, _offsets(o, best), best.sigma_px, cfg)
+    for _ in range(3 if o.n >= _MIN_RANSAC else 0):
+        # re-classify with the noise level of the refined model, refit
+        inl, _, _ = _classify(best.model, o, _offsets(o, best), True, cfg)
         if inl.sum() < 3:
             break
         best = _refine(o.take(inl), best.model, cfg, False, image_size)
@@ -216,8 +231,8 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
         with_c = _refine(o.take(inl), best.model, cfg, True, image_size)
         gain = (best.cost - with_c.cost) / max(with_c.sigma_px, 1e-6) ** 2
         diag.update(principal_point_sd=with_c.c_sd.tolist(), principal_point_gain=gain)
-        good = (with_c.c_sd.max() < cfg.principal_point_max_sd * img_diag
-                and gain > chi2.ppf(0.999, 2))
+        good = (float(np.hypot(*with_c.c_sd)) < cfg.principal_point_max_sd * img_diag
+                and gain > chi2.ppf(0.999, 1))
         if cfg.principal_point == "estimate" or good:
             best, fitted_c = with_c, True
     return _finish(obs, best, fitted_c, image_size, cfg, diag)
@@ -228,7 +243,7 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
     """Classify every detection, build the interval and refuse untrustworthy results."""
     model = best.model
     offsets = _offsets(obs, best)
-    inliers, rel, px = _classify(model, obs, offsets, best.sigma_px, cfg)
+    inliers, rel, px = _classify(model, obs, offsets, True, cfg)
     z = float(norm.ppf(0.5 + cfg.confidence_level / 2))
     sd = best.log_f_sd if np.isfinite(best.log_f_sd) else np.inf
     lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
@@ -249,6 +264,10 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
             f"{100 * cfg.max_focal_uncertainty:.0f} %): {_reason(pitch, diag['ankle_spread'])}")
         err.partial = fit  # type: ignore[attr-defined]
         raise err
+    if obs.n < _MIN_RANSAC:  # too few to tell outliers from noise: all are used
+        inliers = np.ones(obs.n, dtype=bool)
+        fit = SingleViewFit(model, best, (float(lo), float(hi)), fitted_c, inliers, rel, px,
+                            offsets, ankle_ratio, diag)
     if inliers.sum() < cfg.min_detections:
         err = EstimationFailed(f"only {int(inliers.sum())} detections agree with the best model")
         err.partial = fit  # type: ignore[attr-defined]

@@ -126,7 +126,8 @@ class RefineResult:
     log_f_sd : float
         1-sigma of ``log f`` (relative focal uncertainty).
     c_sd : ndarray, shape (2,)
-        1-sigma of the principal point (px); zeros when it was held fixed.
+        1-sigma of the principal point (px) along x and y (it moves along the horizon only);
+        zeros when it was held fixed.
     normal_sd_deg : float
         1-sigma of the normal direction (deg, root of the two tangent variances).
     sigma_px : float
@@ -164,20 +165,25 @@ class _Problem:
         self.obs, self.n0, self.fit_c = obs, model.n, fit_c
         self.e1, self.e2 = _tangent_basis(model.n)
         self.c0, self.c_scale = model.c, c_scale
+        # only the principal point's component along the horizon is observable: people on one
+        # plane give the vertical vanishing point and the horizon (4 dof + scale) for 5 unknowns
+        # (f, c, tilt, roll); moving c towards the vanishing point trades off against f
+        h = np.array([-model.n[1], model.n[0]])
+        self.c_dir = h / np.linalg.norm(h) if np.linalg.norm(h) > 1e-9 else np.array([1.0, 0.0])
         self.hg, self.n_h, self.prior_w = height_groups, n_heights, prior_w
         self.n_r, self.ratio_w = n_ratios, ratio_w
         self.valid = obs.valid
-        self.n_base = 6 if fit_c else 4
+        self.n_base = 5 if fit_c else 4
 
     def x0(self, model: GroundModel) -> F64:
         base = [np.log(model.f), 0.0, 0.0, np.log(model.d)]
         if self.fit_c:
-            base += [0.0, 0.0]
+            base += [0.0]
         return np.r_[base, np.zeros(self.n_r + self.n_h)]
 
     def model(self, x: F64) -> GroundModel:
         n = self.n0 + x[1] * self.e1 + x[2] * self.e2
-        c = self.c0 + (x[4:6] * self.c_scale if self.fit_c else 0.0)
+        c = self.c0 + (x[4] * self.c_scale * self.c_dir if self.fit_c else 0.0)
         return GroundModel(float(np.exp(x[0])), np.asarray(c, float), n / np.linalg.norm(n),
                            float(np.exp(x[3])))
 
@@ -192,25 +198,41 @@ class _Problem:
         return off
 
     def pixel_residuals(self, x: F64) -> F64:
-        pred = self.model(x).predict_upper(self.obs.ankle, self.offsets(x))
-        r = (pred - self.obs.upper)[self.valid]
-        return np.where(np.isfinite(r), r, _MISS_PX).ravel()
+        """Ankle corrections (N, 2) then upper-point residuals (valid, 2), flattened (px).
+
+        The ankle pixels are re-estimated for every evaluation (variable projection): the
+        residual is that of the best ankle, so ankle noise is treated like upper-point noise.
+        """
+        model, off = self.model(x), self.offsets(x)
+        ankle = model.corrected_ankles(self.obs, off)
+        pred = model.predict_upper(ankle, off)
+        r = np.r_[(ankle - self.obs.ankle).ravel(), (pred - self.obs.upper)[self.valid].ravel()]
+        return np.where(np.isfinite(r), r, _MISS_PX)
 
     def __call__(self, x: F64) -> F64:
         b, r = self.n_base, self.n_r
         return np.r_[self.pixel_residuals(x), self.ratio_w * x[b:b + r],
                      self.prior_w * x[b + r:]]
 
+    def row_detections(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Detection and upper column (-1: ankle) of every pixel-residual row."""
+        n = self.obs.n
+        det, col = (np.repeat(v, 2) for v in np.nonzero(self.valid))
+        return (np.r_[np.repeat(np.arange(n), 2), det].astype(np.int64),
+                np.r_[np.full(2 * n, -1), col].astype(np.int64))
+
     def sparsity(self) -> lil_matrix:
-        n_res = 2 * int(self.valid.sum())
+        det, col = self.row_detections()
+        n_res = len(det)
         n_extra = self.n_r + self.n_h
         S = lil_matrix((n_res + n_extra, self.n_base + n_extra), dtype=int)
         S[:n_res, : self.n_base] = 1
-        det, col = (np.repeat(v, 2) for v in np.nonzero(self.valid))
         rows = np.arange(n_res)
         ratio_rows = col > 0
         if self.n_r:
             S[rows[ratio_rows], self.n_base + col[ratio_rows] - 1] = 1
+            # the corrected ankle depends on every upper point of its detection
+            S[rows[col < 0], self.n_base:self.n_base + self.n_r] = 1
         has = self.hg[det] >= 0
         S[rows[has], self.n_base + self.n_r + self.hg[det][has]] = 1
         S[n_res + np.arange(n_extra), self.n_base + np.arange(n_extra)] = 1
@@ -259,7 +281,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     model : GroundModel
         Starting point (DLT on the inliers).
     fit_principal_point : bool
-        Also estimate ``(cx, cy)``.
+        Also estimate the principal point's component along the horizon (the other component
+        is not observable from people on a plane: it trades off against the focal length).
     track_heights : bool
         One height multiplier per person (``obs.group`` >= 0 with at least
         ``min_track_detections`` detections), with prior sd ``height_sd_rel`` (relative).
@@ -294,12 +317,12 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
     fitted = prob.model(res.x)
     r_px = prob.pixel_residuals(res.x)
-    det = np.repeat(np.nonzero(obs.valid)[0], 2)
+    det, _ = prob.row_detections()
     clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids))]
     r_all = np.r_[r_px, res.fun[len(r_px):]]
     cov = _covariance(J, r_all, clus, len(res.x))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    c_sd = sd[4:6] * image_diag if fit_principal_point else np.zeros(2)
+    c_sd = np.abs(sd[4] * image_diag * prob.c_dir) if fit_principal_point else np.zeros(2)
     b = prob.n_base
     heights = {int(i): float(np.exp(v)) for i, v in zip(ids, res.x[b + n_r:], strict=True)}
     ratios = np.exp(np.r_[0.0, res.x[b:b + n_r], np.zeros(obs.upper.shape[1] - 1 - n_r)])

@@ -3,8 +3,9 @@
 The paper (supplement, "Filtering") keeps a 2D pose when its legs and trunk are straight: the
 angles at the knee (ankle-knee-hip) and at the hip (knee-hip-shoulder) must both be close to
 180 deg, on the straighter side of the body. The printed equation subtracts pi from a cosine and
-measures the second angle at the knee; we implement its evident intent with angles in degrees
-and the second angle at the hip. We also reject
+measures the second angle at the knee; we implement its evident intent with angles in degrees,
+the knee angle per side and the trunk angle at the hip on the body's centre line (mid-knee,
+mid-hip, mid-shoulder). We also reject
 
 * truncated or unreliable persons: a required joint missing, below ``min_confidence``, or within
   ``border_px`` of the image edge (a clipped person has a wrong ankle);
@@ -61,17 +62,22 @@ def bend_angle(kp: F64) -> F64:
     Returns
     -------
     ndarray, shape (...)
-        ``min over sides of (180 - knee angle) + (180 - hip angle)``; 0 for a straight pose,
+        ``min over sides of (180 - knee angle)`` plus ``180 -`` the centre-line hip angle (between
+        mid-knee and mid-shoulder); 0 for a straight pose,
         NaN where a joint is missing.
     """
     J = CANONICAL_INDEX
+    # the trunk angle is taken on the body's centre line: the shoulders are wider than the
+    # hips, so a per-side knee-hip-shoulder angle is ~10 deg off even for a straight pose
+    mid_knee = _mid(kp, "left_knee", "right_knee")
+    mid_hip = _mid(kp, "left_hip", "right_hip")
+    hip_dev = 180.0 - _angle_deg(mid_knee - mid_hip, _mid(kp, "left_shoulder",
+                                                          "right_shoulder") - mid_hip)
     out = []
     for side in ("left", "right"):
         ankle, knee = kp[..., J[f"{side}_ankle"], :2], kp[..., J[f"{side}_knee"], :2]
-        hip, shoulder = kp[..., J[f"{side}_hip"], :2], kp[..., J[f"{side}_shoulder"], :2]
-        knee_dev = 180.0 - _angle_deg(ankle - knee, hip - knee)
-        hip_dev = 180.0 - _angle_deg(knee - hip, shoulder - hip)
-        out.append(knee_dev + hip_dev)
+        hip = kp[..., J[f"{side}_hip"], :2]
+        out.append(180.0 - _angle_deg(ankle - knee, hip - knee) + hip_dev)
     return np.fmin(out[0], out[1])
 
 
@@ -111,10 +117,7 @@ def upright_mask(kp: F64, image_size: tuple[int, int], *, max_bend_deg: float,
         tall = np.linalg.norm(ankle - shoulder, axis=-1) >= min_pixel_height
         straight = bend_angle(kp) <= max_bend_deg
         proportions = (ratio >= leg_torso_ratio[0]) & (ratio <= leg_torso_ratio[1])
-        # the shoulders must be above the ankles in the image for a camera that is not upside
-        # down; a lying person seen head-down is not upright
-        upward = shoulder[..., 1] < ankle[..., 1]
-    return present & inside & tall & straight & proportions & upward
+    return present & inside & tall & straight & proportions
 
 
 def _person_heights(height: float | Mapping[int, float] | Sequence[float], default: float,
