@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -153,16 +154,16 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
         min_spread=cfg.min_spread, sigma=cfg.sigma, scale_range=sr,
         n_candidates=cfg.n_candidates, nms_frames=cfg.nms_seconds * fps_ref)
     offs = [int(round(c.offset)) for c in curve.candidates]
-    # quick ICP of every candidate, then the full ICP of the two best
+    # quick ICP of every candidate, then the full ICP of those within half of the best
     results = [_icp(i, j, o, c.angle, lanes, cfg, sr, quick=True)
                for o, c in zip(offs, curve.candidates, strict=True)]
     if not any(_plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
         results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
     scores = _evidence(results, cfg)
-    for k in np.argsort(scores)[::-1][:2]:
+    for k in np.argsort(scores)[::-1][:3]:
         r = results[k]
-        if r is not None:
+        if r is not None and scores[k] >= 0.5 * max(scores):
             results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
     scores = _evidence(results, cfg)
     if not scores or max(scores) <= 0:
@@ -231,6 +232,14 @@ def _global_time(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
               max(0.05, 1.0 - p.ambiguity), p.fit.offset_sd,  # type: ignore[union-attr]
               p.fit.rate_sd / p.fit.rate) for p in usable]  # type: ignore[union-attr]
     a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)
+    # a camera whose every pair disagrees with the others keeps its most confident pair
+    # (flagged ambiguous by its confidence) rather than dropping out of the rig
+    for c in range(n):
+        inc = [k for k, p in enumerate(usable) if c in (p.i, p.j)]
+        if c != ref and inc and not ok[inc].any():
+            ok[max(inc, key=lambda k: edges[k][4])] = True
+            a, b, _ = solve_time(n, [e for e, keep in zip(edges, ok, strict=True) if keep],
+                                 ref, tolerance=np.inf)
     accepted = np.zeros(len(pairs), bool)
     idx = [k for k, p in enumerate(pairs) if p.fit is not None]
     accepted[idx] = ok
@@ -341,8 +350,12 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
             for g, r, f in zip(ground, rho, fps, strict=True)]
     lanes = [dense_lanes(f) for f in fine]
-    pairs = [_align_pair(i, j, coarse, fine, lanes, fps_ref, cfg, rng)
-             for i in range(n) for j in range(i + 1, n)]
+    ij = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
+    with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
+        pairs = list(pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, fps_ref, cfg,
+                                                    np.random.default_rng(seeds[k])),
+                              range(len(ij))))
     a, b, accepted = _global_time(n, ref, pairs, cfg)
     pairs = [PairAlignment(p.i, p.j, p.curve, p.icp_scores, p.chosen, p.fit, p.ambiguity,
                            bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]

@@ -95,5 +95,8 @@ class AlignConfig(BaseModel):
     smooth_seconds: float = Field(
         0.1, ge=0, description="Gaussian smoothing (s) of the trajectories before the sub-frame "
         "fit; removes the half-frame bias of interpolating noisy samples.")
+    n_workers: int = Field(
+        2, ge=1, description="Threads aligning camera pairs in parallel (numpy and the FFTs "
+        "release the GIL).")
     refine_sigma: float = Field(
         0.1, gt=0, description="Soft-L1 scale (m) of the sub-frame offset / rate fit.")

@@ -243,27 +243,40 @@ def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
     """Frame-to-frame linking by optimal assignment; ids (n_frames, n_persons), -1 missing."""
     n_f, n_p = ok.shape
     ids = np.full((n_f, n_p), -1, np.int64)
-    active: dict[int, tuple[int, NDArray[np.float64]]] = {}  # id -> (last frame, last xy)
+    # live tracks as parallel arrays: id, last frame, last position
+    t_id = np.zeros(0, np.int64)
+    t_f = np.zeros(0, np.int64)
+    t_xy = np.zeros((0, 2))
     next_id = 0
     for f in range(n_f):
         cur = np.flatnonzero(ok[f])
         if cur.size == 0:
             continue
-        live = [k for k, (lf, _) in active.items() if f - lf <= max_gap]
-        if live:
-            prev = np.array([active[k][1] for k in live])
-            gaps = np.array([f - active[k][0] for k in live], float)
-            d = np.linalg.norm(xy[f, cur][:, None] - prev[None], axis=-1)
-            cost = np.where(d <= gate0 + speed * gaps[None], d, 1e6)
-            r, c = linear_sum_assignment(cost)
-            good = cost[r, c] < 1e6
-            for i, j in zip(r[good], c[good], strict=True):
-                ids[f, cur[i]] = live[j]
-        for i in cur:
-            if ids[f, i] < 0:
-                ids[f, i] = next_id
-                next_id += 1
-            active[int(ids[f, i])] = (f, xy[f, i])
+        alive = f - t_f <= max_gap
+        t_id, t_f, t_xy = t_id[alive], t_f[alive], t_xy[alive]
+        pts = xy[f, cur]
+        got = np.full(cur.size, -1)
+        if t_id.size:
+            d = np.linalg.norm(pts[:, None] - t_xy[None], axis=-1)
+            gate = gate0 + speed * (f - t_f)[None, :]
+            if cur.size == 1:  # the common cases need no assignment solver
+                r, c = np.zeros(1, int), np.argmin(d, axis=1)
+            elif t_id.size == 1:
+                r, c = np.array([np.argmin(d[:, 0])]), np.zeros(1, int)
+            else:
+                r, c = linear_sum_assignment(np.where(d <= gate, d, 1e6))
+            good = d[r, c] <= gate[0, c]
+            got[r[good]] = c[good]
+        new = got < 0
+        ids[f, cur[~new]] = t_id[got[~new]]
+        ids[f, cur[new]] = next_id + np.arange(new.sum())
+        next_id += int(new.sum())
+        # update matched tracks, append new ones
+        t_f[got[~new]] = f
+        t_xy[got[~new]] = pts[~new]
+        t_id = np.r_[t_id, ids[f, cur[new]]]
+        t_f = np.r_[t_f, np.full(new.sum(), f)]
+        t_xy = np.r_[t_xy, pts[new]]
     return ids
 
 

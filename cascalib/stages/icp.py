@@ -261,7 +261,7 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
         tr = new
         rms = float(np.sqrt(np.mean(d[keep] ** 2)))
         g2 = max(min_gate, min(g2, 4.0 * rms))
-        if moved < 1e-4 and it > 3:
+        if moved < 1e-3 and it > 2:
             break
     qb = tr.apply(pb)
     cost = ((pa[:, :, None, :] - qb[:, None, :, :]) ** 2).sum(-1)
@@ -297,7 +297,7 @@ class SyncFit:
 
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 4000,
+                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 2500,
                 rng: np.random.Generator | None = None) -> SyncFit:
     """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
 

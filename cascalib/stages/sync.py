@@ -171,16 +171,41 @@ def _chunks(track: GridTrack, chunk: int, min_samples: int, min_spread: float
     return out
 
 
-def _dense(track: GridTrack, n_fft: int) -> tuple[NDArray[np.complex128], ...]:
-    """FFTs of mask, mask*z and mask*|z|^2 of every tracklet on the full grid, (n_tl, n_fft)."""
-    n_tl = len(track.xy)
-    m = np.zeros((n_tl, n_fft))
-    z = np.zeros((n_tl, n_fft), np.complex128)
-    for i, (s0, xy) in enumerate(zip(track.start, track.xy, strict=True)):
-        ok = np.isfinite(xy[:, 0])
-        idx = s0 + np.arange(len(xy))
-        m[i, idx[ok]] = 1.0
-        z[i, idx[ok]] = xy[ok, 0] + 1j * xy[ok, 1]
+def _lanes(track: GridTrack, min_gap: int) -> list[list[int]]:
+    """Pack tracklets into lanes whose members are at least ``min_gap`` samples apart.
+
+    A chunk's overlap window is shorter than ``min_gap``, so it never spans two tracklets of
+    one lane: fitting a chunk against a lane is fitting it against one tracklet, and there are
+    about as many lanes as people seen at once instead of one per tracklet.
+    """
+    ends: list[int] = []
+    lanes: list[list[int]] = []
+    for i in np.argsort(track.start, kind="stable"):
+        s0 = int(track.start[i])
+        free = [k for k, e in enumerate(ends) if e + min_gap <= s0]
+        if free:
+            k = free[0]
+        else:
+            k = len(ends)
+            ends.append(0)
+            lanes.append([])
+        ends[k] = s0 + len(track.xy[i])
+        lanes[k].append(int(i))
+    return lanes
+
+
+def _dense(track: GridTrack, n_fft: int, min_gap: int) -> tuple[NDArray[np.complex128], ...]:
+    """FFTs of mask, mask*z and mask*|z|^2 of every lane on the full grid, (n_lanes, n_fft)."""
+    lanes = _lanes(track, min_gap)
+    m = np.zeros((len(lanes), n_fft))
+    z = np.zeros((len(lanes), n_fft), np.complex128)
+    for k, members in enumerate(lanes):
+        for i in members:
+            xy = track.xy[i]
+            ok = np.isfinite(xy[:, 0])
+            idx = track.start[i] + np.arange(len(xy))
+            m[k, idx[ok]] = 1.0
+            z[k, idx[ok]] = xy[ok, 0] + 1j * xy[ok, 1]
     return (sfft.fft(m, axis=1), sfft.fft(z, axis=1),
             sfft.fft(m * np.abs(z) ** 2, axis=1))
 
@@ -258,7 +283,7 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     lag_idx = lags % n_fft
     n_off = a.length + b.length - 1  # offset index: (p - lag) + b.length - 1
     hist = np.zeros((n_off + chunk, angle_bins))
-    G = _dense(b, n_fft)
+    G = _dense(b, n_fft, chunk + 1)
     chunks = _chunks(a, chunk, min_overlap, min_spread)
     for p, part in chunks:
         sup, th = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range, sigma)

@@ -1,0 +1,184 @@
+"""Benchmark of stages II-IV (time sync + ground alignment) on simulated scenes.
+
+Stage I is replaced by the TRUE cameras expressed in per-camera plane frames (random yaw and
+shift: exactly the ambiguity stage I leaves), optionally with stage-I-like errors (focal, tilt,
+metric scale). Prints three tables:
+
+1. simulator scenes with windows cut so that offsets span -50 % .. +50 % of the sequence, mixed
+   frame rates (25/30 fps) and clock drift;
+2. the paper's sync experiment (Table "Temporal synchronization", Human3.6M-like: one person
+   walking laps of a loop, 50 fps, offsets 0-200 frames) next to the paper's numbers;
+3. run time for 4 cameras x 3000 frames x 5 persons.
+
+    python bench/bench_sync.py            # full (several minutes on 2 shared cores)
+    python bench/bench_sync.py --quick    # one seed per scene
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "stages"))
+from align_scene import make_scene, plane_camera  # noqa: E402
+
+from cascalib.calibration import Calibration  # noqa: E402
+from cascalib.camera import Camera  # noqa: E402
+from cascalib.metrics import compare_calibrations  # noqa: E402
+from cascalib.simulate import simulate  # noqa: E402
+from cascalib.stages.align import align_cameras  # noqa: E402
+from cascalib.tracks import Tracks  # noqa: E402
+
+# Paper, Table "Temporal synchronization experiments" (pred f columns: mean, median, std).
+PAPER = {0: (2.90, 2.5, 14.05), 50: (52.81, 52.5, 14.12), 100: (102.67, 102, 14.22),
+         150: (153.48, 153, 15.04), 200: (189.26, 201, 51.70)}
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def stage1_like(cam: Camera, rng: np.random.Generator, *, errors: bool) -> Camera:
+    """The true camera in its own plane frame, with stage-I-like errors when asked:
+    focal 3 %, tilt 1 deg, metric scale 5 % (1 s.d.)."""
+    scale = 1.0 + (rng.normal(0, 0.05) if errors else 0.0)
+    pc = plane_camera(cam, scale, rng.uniform(0, 2 * np.pi), rng.uniform(-5, 5, 2))
+    if not errors:
+        return pc
+    K = pc.K.copy()
+    K[:2, :2] *= 1.0 + rng.normal(0, 0.03)
+    R = _rx(np.radians(rng.normal(0, 1.0))) @ pc.R
+    return pc.with_(K=K, R=R, t=-R @ pc.center)
+
+
+def cut_windows(tracks: list[Tracks], truth: Calibration, frac: float,
+                rng: np.random.Generator) -> tuple[list[Tracks], Calibration]:
+    """Cut every camera to ``frac`` of the reference's length with start times spread so that
+    offsets to the reference span +-50 % of the window."""
+    cams = truth.cameras
+    n_ref = tracks[0].n_frames
+    L = int(frac * n_ref)  # window length in reference frames
+    w_ref = (n_ref - L) // 2
+    out_t, out_c = [], []
+    for tr, cam in zip(tracks, cams, strict=True):
+        lo = max(0.0, w_ref - 0.5 * L, cam.time_offset)
+        hi = min(w_ref + 0.5 * L, cam.time_offset + cam.time_rate * tr.n_frames - L)
+        w = w_ref if cam.name == truth.reference_camera else rng.uniform(lo, max(lo, hi))
+        k0 = int(np.ceil((w - cam.time_offset) / cam.time_rate))
+        n = int(L / cam.time_rate)
+        sl = slice(k0, k0 + n)
+        out_t.append(tr.with_(keypoints=tr.keypoints[sl],
+                              track_ids=None if tr.track_ids is None else tr.track_ids[sl],
+                              timestamps=None if tr.timestamps is None else tr.timestamps[sl]))
+        out_c.append(cam.with_(time_offset=cam.time_rate * k0 + cam.time_offset - w_ref))
+    return out_t, Calibration(out_c, reference_camera=truth.reference_camera)
+
+
+def run_scene(preset: str, seed: int, *, errors: bool) -> dict[str, object]:
+    sc = simulate(preset, seed=seed, **{"timing.fps": (25.0, 30.0), "timing.fps_in_turn": True,
+                                        "timing.drift_sd": 1e-4, "timing.max_offset_s": 1.0,
+                                        "duration_s": 80.0})
+    rng = np.random.default_rng(seed)
+    tracks, truth = cut_windows(sc.tracks, sc.truth, 0.45, rng)
+    plane = [stage1_like(c, rng, errors=errors) for c in truth.cameras]
+    t0 = time.perf_counter()
+    res = align_cameras(tracks, plane, rng=seed)
+    dt = time.perf_counter() - t0
+    err = compare_calibrations(res.calibration, truth, ground=True)
+    rows = [r for r in err.cameras if r.camera != truth.reference_camera]
+    L = tracks[0].n_frames
+    true_off = [abs(truth[r.camera].time_offset) / L for r in rows]
+    return {"off": [abs(r.time_offset_error_frames) for r in rows],
+            "rate": [abs(r.time_rate_error_pct) for r in rows],
+            "rot": [r.rotation_error_deg for r in rows],
+            "pos": [r.center_error_similarity for r in rows],
+            "span": max(true_off), "time": dt, "frames": L,
+            "flags": sum(bool(f) for f in res.flags.values())}
+
+
+def table_scenes(seeds: list[int]) -> None:
+    print("\n## 1. Simulator scenes: offsets up to +-50 % of the sequence, 25/30 fps in turn, "
+          "drift 1e-4 s.d.; stage-I errors: focal 3 %, tilt 1 deg, scale 5 %")
+    print(f"{'scene':10s} {'I-err':5s} {'cams':>4s} {'frames':>6s} {'max|off|/L':>10s} "
+          f"{'int ok':>7s} {'off med':>7s} {'off max':>7s} {'rate max%':>9s} {'rot max':>7s} "
+          f"{'pos max':>7s} {'flags':>5s} {'time s':>6s}")
+    total, exact = 0, 0
+    for preset in ("terrace", "lab_ring", "crowd", "periodic"):
+        for errors in (False, True):
+            acc: dict[str, list[float]] = {k: [] for k in ("off", "rate", "rot", "pos")}
+            span, tsum, frames, flags = 0.0, 0.0, 0, 0
+            for seed in seeds:
+                r = run_scene(preset, seed, errors=errors)
+                for k in acc:
+                    acc[k] += r[k]  # type: ignore[operator]
+                span = max(span, r["span"])  # type: ignore[call-overload]
+                tsum += r["time"]  # type: ignore[operator]
+                frames = r["frames"]  # type: ignore[assignment]
+                flags += r["flags"]  # type: ignore[operator]
+            off = np.array(acc["off"])
+            ok = int((off < 0.5).sum())
+            total, exact = total + off.size, exact + ok
+            print(f"{preset:10s} {'yes' if errors else 'no':5s} {off.size:4d} {frames:6d} "
+                  f"{span:10.2f} {ok:3d}/{off.size:<3d} {np.median(off):7.3f} {off.max():7.3f} "
+                  f"{max(acc['rate']):9.4f} {max(acc['rot']):7.2f} {max(acc['pos']):7.3f} "
+                  f"{flags:5d} {tsum / len(seeds):6.2f}")
+    print(f"integer part exact (|error| < 0.5 frame): {exact}/{total} = {100 * exact / total:.1f} %"
+          " of non-reference cameras")
+
+
+def table_paper(n_subjects: int) -> None:
+    print("\n## 2. Paper's sync experiment, Human3.6M-like: 1 person walking laps of a loop "
+          "(period ~4 s, lap-to-lap path variation 0.15 m), 2 cameras, 50 fps, 1000 frames")
+    print(f"{'offset':>6s} | {'ours mean':>9s} {'median':>7s} {'std':>6s} {'max|err|':>8s} "
+          f"{'flagged':>7s} | {'paper mean':>10s} {'median':>7s} {'std':>6s}")
+    for off in (0, 50, 100, 150, 200):
+        pred, flagged = [], 0
+        for s in range(n_subjects):
+            sc = make_scene(n_cams=2, n_persons=1, n_ref_frames=1000, fps=[50.0, 50.0],
+                            offsets=[0.0, float(off)], path="loop", period=4.0,
+                            variability=0.15, seed=100 + s)
+            res = align_cameras(sc.tracks, sc.plane, rng=s)
+            # paper convention: predicted shift of the second video (positive = later start)
+            pred.append(res.calibration.cameras[1].time_offset)
+            flagged += bool(res.flags["cam1"])
+        p = np.array(pred)
+        pm = PAPER[off]
+        print(f"{off:6d} | {p.mean():9.2f} {np.median(p):7.2f} {p.std():6.2f} "
+              f"{np.abs(p - off).max():8.2f} {flagged:7d} | {pm[0]:10.2f} {pm[1]:7.1f} "
+              f"{pm[2]:6.2f}")
+
+
+def table_time() -> None:
+    print("\n## 3. Run time: 4 cameras x 3000 frames x 5 persons (30 fps, terrace rig)")
+    sc = simulate("terrace", seed=0, **{"timing.fps": (30.0,), "duration_s": 100.5,
+                                        "timing.max_offset_s": 0.0})
+    rng = np.random.default_rng(0)
+    plane = [stage1_like(c, rng, errors=False) for c in sc.truth.cameras]
+    t0 = time.perf_counter()
+    align_cameras(sc.tracks, plane, rng=0)
+    dt = time.perf_counter() - t0
+    print(f"frames per camera {[t.n_frames for t in sc.tracks]}, persons {len(sc.heights)}: "
+          f"{dt:.2f} s")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="one seed per scene, 3 subjects")
+    ap.add_argument("--only", choices=("scenes", "paper", "time"), default=None)
+    args = ap.parse_args()
+    seeds = [0] if args.quick else [0, 1, 2]
+    if args.only in (None, "scenes"):
+        table_scenes(seeds)
+    if args.only in (None, "paper"):
+        table_paper(3 if args.quick else 7)
+    if args.only in (None, "time"):
+        table_time()
+
+
+if __name__ == "__main__":
+    main()
