@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
@@ -48,6 +48,15 @@ class SceneConfig(BaseModel):
     skeleton: str = Field(default="halpe26", description="Skeleton of the written detections.")
     camera_names: list[str] | None = Field(
         default=None, description="Camera names (default cam0, cam1, ...).")
+
+    @model_validator(mode="after")
+    def _check_names(self) -> SceneConfig:
+        names = self.camera_names
+        if names is not None and (len(names) != self.rig.n_cameras
+                                  or len(set(names)) != len(names)):
+            raise ValueError(f"camera_names must be {self.rig.n_cameras} unique names, "
+                             f"got {names}")
+        return self
 
     def with_(self, **changes: Any) -> SceneConfig:
         """A copy with (dotted, nested) fields replaced: ``with_(**{"people.n_persons": 3})``."""

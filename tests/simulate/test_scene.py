@@ -257,3 +257,11 @@ def test_strong_distortion_never_folds_points_into_the_image():
         seen = np.isfinite(tr.keypoints[..., 0])
         ideal = xc[..., :2][seen] / xc[..., 2:][seen]
         np.testing.assert_allclose(cam.undistort(tr.keypoints[..., :2][seen]), ideal, atol=1e-9)
+
+
+def test_camera_names():
+    scene = simulate("clean", seed=0, duration_s=4,
+                     **{"rig.n_cameras": 2, "camera_names": ["left", "right"]})
+    assert scene.truth.names == ["left", "right"] == [t.camera for t in scene.tracks]
+    with pytest.raises(ValueError, match="camera_names must be 2 unique names"):
+        SceneConfig(rig={"n_cameras": 2}, camera_names=["a", "a"])
