@@ -18,7 +18,9 @@ from cascalib import __version__
 from cascalib.errors import CascalibError
 
 #: Sub-command modules, in the order ``cascalib --help`` lists them.
-COMMANDS: tuple[str, ...] = ("calibrate", "info", "tracks_info", "convert", "evaluate", "simulate", "serve")
+COMMANDS: tuple[str, ...] = (
+    "calibrate", "simulate", "evaluate", "convert", "tracks_info", "info", "serve",
+)
 
 #: Exit codes: 0 success, 1 calibration failed or rejected, 2 bad input or usage.
 EXIT_FAILED = 1
