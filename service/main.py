@@ -74,6 +74,17 @@ def prepare_store(settings: Settings) -> Store:
     return store
 
 
+def _warm_up() -> None:
+    """Import the keypoint readers and the config now, not during the first upload."""
+    import importlib
+
+    for name in ("cascalib.formats", "cascalib.config"):
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            log.warning("%s not importable: uploads cannot be validated fully", name)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The service application for ``settings`` (read from the environment when None)."""
     settings = settings or Settings()
@@ -81,6 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = prepare_store(settings)
+        _warm_up()
         swept = store.sweep_orphans()
         if swept:
             log.warning("removed %d half-stored submission(s) left by a crash", swept)

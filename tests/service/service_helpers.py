@@ -304,3 +304,16 @@ needs_pipeline = pytest.mark.skipif(
 def next_token() -> str:
     """A token no other test of this session has used yet (wraps after 60)."""
     return TOKENS[next(_token_counter) % len(TOKENS)]
+
+
+def sim_files(tmp: Path) -> list[tuple[str, bytes]]:
+    """The cameras of the simulator's "terrace" scene as native .npz keypoint files."""
+    from cascalib.formats import write_tracks
+    from cascalib.simulate import simulate
+
+    files = []
+    for tr in simulate("terrace", seed=0).tracks:
+        path = tmp / f"{tr.camera}.npz"
+        write_tracks(tr, path, format="native-npz")
+        files.append((path.name, path.read_bytes()))
+    return files

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import concurrent.futures
+import io
 import json
 import time
+import zipfile
+from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -14,9 +18,12 @@ from service_helpers import (
     OPTIONS,
     TOKENS,
     Deployment,
+    build_deployment,
     camera_zip,
     needs_pipeline,
+    next_token,
     openpose_frames,
+    sim_files,
     submit,
     wait_finished,
     zip_bytes,
@@ -162,7 +169,7 @@ def test_idempotency_key(client: httpx.Client) -> None:
     assert client.get("/v1/jobs").json()["count"] == 2
 
 
-def test_job_reaches_an_end_with_a_reason(client: httpx.Client) -> None:
+def test_job_reaches_an_end_with_a_reason(deployment: Deployment, client: httpx.Client) -> None:
     r = submit(client)
     assert r.status_code == 202, r.text
     body = r.json()
@@ -173,6 +180,8 @@ def test_job_reaches_an_end_with_a_reason(client: httpx.Client) -> None:
     assert job["created_at"] <= job["started_at"] <= job["finished_at"]
     if job["status"] == "failed":
         assert job["error"] and "Traceback" not in job["error"]
+        assert str(deployment.data_dir) not in job["error"] and "/tmp" not in job["error"]
+        assert "cam0.zip" in job["error"]  # named as the client named it
         r = client.get(f"/v1/jobs/{body['id']}/result")
         assert r.status_code == 409 and "failed" in r.json()["detail"]
 
@@ -220,28 +229,42 @@ def test_inputs_kept_with_checksums(deployment: Deployment, client: httpx.Client
 
 @needs_pipeline
 @pytest.mark.slow
-def test_full_life_cycle(deployment: Deployment, client: httpx.Client, tmp_path) -> None:
-    from cascalib.formats import load_calibration, write_tracks
-    from cascalib.simulate import simulate
+@pytest.mark.parametrize("kind", ["sqlite", "celery"])
+def test_full_life_cycle(kind: str, tmp_path: Path) -> None:
+    """Submit a simulated rig, poll to success, download every output."""
+    from cascalib.formats import load_calibration
 
-    scene = simulate("terrace", seed=0)
-    files = []
-    for tr in scene.tracks:
-        path = tmp_path / f"{tr.camera}.json"
-        write_tracks(tr, path, format="native-json")
-        files.append((path.name, path.read_bytes()))
+    dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_UPLOAD_BYTES=str(200 * 2**20))
+    try:
+        with dep.client(next_token()) as client:
+            _life_cycle(client, tmp_path, load_calibration)
+    finally:
+        dep.stop()
+        if pg:
+            pg.drop()
+
+
+def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> None:
+    files = sim_files(tmp_path)
     r = submit(client, files, {"seed": 0})
     assert r.status_code == 202, r.text
-    job = wait_finished(client, r.json()["id"], timeout=900)
+    job = wait_finished(client, r.json()["id"], timeout=1800)
     assert job["status"] == "succeeded", job
+    assert job["progress"] == 1.0 and job["stage"] == "done"
     result = client.get(f"/v1/jobs/{job['id']}/result")
-    assert result.status_code == 200
+    assert result.status_code == 200 and result.headers["etag"]
     (tmp_path / "calibration.json").write_bytes(result.content)
     calib = load_calibration(tmp_path / "calibration.json")
-    assert calib.names == [t.camera for t in scene.tracks]
-    assert json.loads(result.content)
+    assert calib.names == [name.rsplit(".", 1)[0] for name, _ in files]
     for fmt in ("toml", "opencv", "colmap", "easymocap"):
-        assert client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt}).status_code == 200
+        r = client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt})
+        assert r.status_code == 200 and r.content, fmt
+    for fmt in ("colmap", "easymocap"):
+        r = client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt})
+        assert zipfile.ZipFile(io.BytesIO(r.content)).namelist()
     report = client.get(f"/v1/jobs/{job['id']}/report")
     assert report.status_code == 200 and "<html" in report.text.lower()
-    assert client.get(f"/v1/jobs/{job['id']}/poses").status_code == 200
+    poses = client.get(f"/v1/jobs/{job['id']}/poses")
+    assert poses.status_code == 200 and json.loads(poses.content)
+    assert client.get(f"/v1/jobs/{job['id']}/poses", params={"format": "npz"}).content[:2] == b"PK"
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204

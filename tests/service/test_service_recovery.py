@@ -21,6 +21,7 @@ from service_helpers import (
     build_deployment,
     needs_pipeline,
     next_token,
+    sim_files,
     submit,
     wait_finished,
 )
@@ -41,7 +42,7 @@ def crash_state(dep: Deployment, job_id: str, *, attempts: int, worker: str) -> 
     engine.dispose()
 
 
-@pytest.fixture(params=["sqlite", "postgres"])
+@pytest.fixture(params=["sqlite", pytest.param("postgres", marks=pytest.mark.slow)])
 def local_deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deployment]:
     dep, pg = build_deployment(request.param, tmp_path, CASCALIB_MAX_ATTEMPTS="2",
                                CASCALIB_WORKERS="1")
@@ -73,22 +74,26 @@ def test_server_crash_requeues_then_gives_up(local_deployment: Deployment) -> No
                                  "gave up after 2 attempt(s)")
 
 
-def _job_processes(server_pid: int) -> list[int]:
-    """Worker processes (multiprocessing spawn children) of the server."""
+def _children(pid: int) -> list[int]:
     pids = []
-    for task in Path(f"/proc/{server_pid}/task").iterdir():
-        try:
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
             pids += [int(p) for p in (task / "children").read_text().split()]
-        except OSError:
-            continue
+    except OSError:
+        pass
+    return pids
+
+
+def _job_processes(server_pid: int) -> list[int]:
+    """Job processes of the server: the children of its multiprocessing fork server."""
     out = []
-    for pid in pids:
+    for pid in _children(server_pid):
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
-        if b"spawn_main" in cmd and b"resource_tracker" not in cmd:
-            out.append(pid)
+        if b"forkserver" in cmd:
+            out += _children(pid)
     return out
 
 
@@ -130,26 +135,15 @@ def test_celery_reaper_requeues_job_of_dead_worker(tmp_path: Path) -> None:
             pg.drop()
 
 
-def _sim_files(tmp: Path) -> list[tuple[str, bytes]]:
-    from cascalib.formats import write_tracks
-    from cascalib.simulate import simulate
-
-    files = []
-    for tr in simulate("terrace", seed=0).tracks:
-        path = tmp / f"{tr.camera}.json"
-        write_tracks(tr, path, format="native-json")
-        files.append((path.name, path.read_bytes()))
-    return files
-
-
 @needs_pipeline
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["sqlite", "celery"])
 def test_kill_worker_mid_job_then_restart(kind: str, tmp_path: Path) -> None:
-    dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_ATTEMPTS="3")
+    dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_ATTEMPTS="3",
+                               CASCALIB_MAX_UPLOAD_BYTES=str(200 * 2**20))
     try:
         with dep.client(next_token()) as c:
-            job_id = submit(c, _sim_files(tmp_path), {}).json()["id"]
+            job_id = submit(c, sim_files(tmp_path), {}).json()["id"]
             deadline = time.monotonic() + 300
             while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
                 assert time.monotonic() < deadline
