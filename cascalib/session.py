@@ -173,41 +173,35 @@ def load_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
     InputError
         Unreadable input, duplicate camera names, unknown camera in an override.
     """
-    from cascalib.formats import read_tracks_many
+    from cascalib.formats import read_session
 
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no input given: name one keypoint file or folder per camera")
-    tracks: list[Tracks] = []
+    files: list[Path] = []
+    names: list[str | None] = []
     manifest_sizes: dict[str, Any] = {}
     manifest_fps: dict[str, Any] = {}
     for p in paths:
         if not p.exists():
             raise InputError("no such file or folder", file=str(p))
-        if is_manifest(p):
-            data = read_manifest(p)
-            sk = data.get("skeleton", skeleton)
-            for name, spec in data["cameras"].items():
-                f = (p.parent / spec["file"]).resolve()
-                if not f.exists():
-                    raise InputError("no such file or folder", file=str(f), camera=name,
-                                     field="file")
-                t = read_tracks_many(f, camera=name, skeleton=spec.get("skeleton", sk))
-                tracks.extend(t)
-                for key, store in (("image_size", manifest_sizes), ("fps", manifest_fps)):
-                    if key in spec:
-                        store[name] = spec[key]
-                    elif key in data:
-                        store[name] = data[key]
-        else:
-            tracks.extend(read_tracks_many(p, skeleton=skeleton))
-    names = [t.camera for t in tracks]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        files = [t.source for t in tracks if t.camera in dup]
-        raise InputError(f"duplicate camera names {dup} (from {files}): rename the files or use "
-                         "a session manifest", camera=dup[0], field="camera")
+        if not is_manifest(p):
+            files.append(p)
+            names.append(None)
+            continue
+        data = read_manifest(p)
+        skeleton = data.get("skeleton", skeleton)
+        for name, spec in data["cameras"].items():
+            f = (p.parent / spec["file"]).resolve()
+            if not f.exists():
+                raise InputError("no such file or folder", file=str(f), camera=name, field="file")
+            files.append(f)
+            names.append(name)
+            for key, store in (("image_size", manifest_sizes), ("fps", manifest_fps)):
+                if key in spec or key in data:
+                    store[name] = spec.get(key, data.get(key))
+    tracks = read_session(files, cameras=names, skeleton=skeleton)  # type: ignore[arg-type]
     if manifest_sizes or manifest_fps:
         tracks = apply_overrides(tracks, image_size=manifest_sizes or None,
-                                 fps={k: v for k, v in manifest_fps.items()} or None)
+                                 fps=manifest_fps or None)
     return apply_overrides(tracks, image_size=image_size, fps=fps)
