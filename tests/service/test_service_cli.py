@@ -1,0 +1,33 @@
+"""``cascalib serve``: refuses to run open, starts with a token or --insecure-no-auth."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+from service_helpers import Deployment, make_env
+
+
+def test_serve_refuses_to_start_without_tokens(tmp_path: Path) -> None:
+    env = make_env(tmp_path / "data")
+    del env["CASCALIB_API_TOKENS"]
+    r = subprocess.run([sys.executable, "-m", "cascalib.cli", "serve", "--port", "1"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "no API token configured" in r.stderr and "--insecure-no-auth" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_serve_insecure_no_auth_opens_the_api(tmp_path: Path) -> None:
+    env = make_env(tmp_path / "data")
+    del env["CASCALIB_API_TOKENS"]
+    dep = Deployment("insecure", env, tmp_path / "data", tmp_path)
+    dep.start_server(extra=("--insecure-no-auth",))
+    try:
+        r = httpx.get(dep.url + "/v1/jobs")
+        assert r.status_code == 200 and r.json()["count"] == 0
+    finally:
+        dep.stop()
+    assert (tmp_path / "data" / "cascalib.db").is_file()  # the default SQLite store
