@@ -63,13 +63,14 @@ class SingleViewConfig(BaseModel):
                           "fixed height for everyone.")
     min_track_detections: int = Field(
         5, ge=2, description="Upright frames a track needs to get its own height.")
-    upper_points: list[Literal["shoulder", "neck", "head_top"]] = Field(
-        default_factory=lambda: ["shoulder", "neck", "head_top"],
+    upper_points: list[Literal["shoulder", "hip", "neck", "head_top"]] = Field(
+        default_factory=lambda: ["shoulder", "hip", "neck", "head_top"],
         description="Points above the ankle centre to use (the paper uses the shoulder centre "
-                    "only). Neck and head top are used only when the skeleton has them.")
+                    "only). The hip centre lengthens the lever that fixes each body's vertical "
+                    "axis; neck and head top are used only when the skeleton has them.")
     joint_height_ratios: dict[str, float] = Field(
-        default_factory=lambda: {"ankle": 0.039, "shoulder": 0.818, "neck": 0.818,
-                                 "head_top": 1.0},
+        default_factory=lambda: {"ankle": 0.039, "hip": 0.530, "shoulder": 0.818,
+                                 "neck": 0.818, "head_top": 1.0},
         description="Height above the floor as a fraction of stature (Drillis & Contini 1966: "
                     "ankle 0.039, shoulder 0.818, head top 1.0; the neck keypoint of "
                     "COCO-derived detectors is the shoulder midpoint, others place it higher, "
@@ -79,6 +80,12 @@ class SingleViewConfig(BaseModel):
                           "anchors the scale) under a prior of s.d. `upper_ratio_sd`.")
     upper_ratio_sd: float = Field(
         0.05, gt=0.0, description="Relative prior s.d. of the refined neck/head-top ratios.")
+    ankle_sideways_weight: float = Field(
+        0.25, gt=0.0, le=1.0,
+        description="Weight of the ankle centre's image position across the body axis relative "
+                    "to along it (1: as reliable as the upper points). Walking feet swing "
+                    "sideways of the vertical through the shoulders; trusting them fully tilts "
+                    "the body axes at random and biases the focal length low.")
     # -- upright filter -------------------------------------------------------------------
     max_bend_deg: float = Field(
         25.0, gt=0.0,
@@ -109,7 +116,8 @@ class SingleViewConfig(BaseModel):
         description="After the refinement, a detection is an inlier if its error is within "
                     "the paper's thresholds or within this many robust s.d. of the residuals "
                     "(keeps good data when the detector noise exceeds 5 % of small persons).")
-    ransac_max_iterations: int = Field(1000, ge=1, description="RANSAC iteration cap.")
+    ransac_max_iterations: int = Field(
+        300, ge=1, description="RANSAC iteration cap (the grid-search start backs it up).")
     ransac_confidence: float = Field(
         0.999, gt=0.0, lt=1.0, description="RANSAC stops when an all-inlier sample has been "
                                            "drawn with this probability.")
@@ -117,12 +125,12 @@ class SingleViewConfig(BaseModel):
         0.02, ge=0.0, description="Minimal samples whose ankles are closer than this fraction "
                                   "of the image diagonal are rejected unsolved.")
     max_detections: int = Field(
-        800, ge=10,
+        600, ge=10,
         description="Upright detections used for the fit, picked spread over the image "
                     "(consecutive frames add little); all are classified in the end.")
     # -- model ----------------------------------------------------------------------------
     principal_point: Literal["center", "estimate", "auto"] = Field(
-        "auto", description="'center' holds it at the image centre (paper); 'estimate' always "
+        "center", description="'center' holds it at the image centre (paper); 'estimate' always "
                             "fits it; 'auto' fits it and keeps it when well determined and "
                             "significantly better.")
     principal_point_max_sd: float = Field(

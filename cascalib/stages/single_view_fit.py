@@ -36,8 +36,12 @@ F64 = NDArray[np.float64]
 _MIN_RANSAC = 6
 #: Image cells per side for spatial subsampling and for the independence clusters.
 _CELLS = 12
-#: Detections RANSAC scores its hypotheses on.
+#: Detections RANSAC scores its hypotheses on, and the starting models are compared on.
 _RANSAC_SCORE = 300
+_START_SET = 250
+#: Image cells per side of the independence clusters when persons are not tracked: coarse,
+#: because a walker's gait and lean errors persist over metres of their path.
+_CLUSTER_CELLS = 4
 
 
 @dataclass(frozen=True)
@@ -81,7 +85,8 @@ def _subsample(obs: Observations, size: tuple[int, int], max_n: int,
 
 def _clusters(obs: Observations, size: tuple[int, int]) -> NDArray[np.int64]:
     """Independence clusters: the track id when known, else the image cell of the ankle."""
-    cells = spatial_cells(obs.ankle, size, _CELLS) + 1 + int(max(obs.group.max(initial=0), 0))
+    cells = spatial_cells(obs.ankle, size, _CLUSTER_CELLS) + 1 + int(max(obs.group.max(
+        initial=0), 0))
     return np.where(obs.group >= 0, obs.group, cells)
 
 
@@ -120,7 +125,7 @@ def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c:
                   min_track_detections=cfg.min_track_detections,
                   fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                   clusters=_clusters(obs, size), image_diag=float(np.hypot(*size)),
-                  loss=cfg.loss)
+                  loss=cfg.loss, ankle_sideways=cfg.ankle_sideways_weight)
 
 
 def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleViewConfig,
@@ -166,7 +171,7 @@ def _robust_start(o: Observations, starts: list[GroundModel], cfg: SingleViewCon
                    min_track_detections=cfg.min_track_detections,
                    fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                    clusters=_clusters(o, size), image_diag=float(np.hypot(*size)),
-                   loss="cauchy", f_scale=2.0)
+                   loss="cauchy", f_scale=2.0, ankle_sideways=cfg.ankle_sideways_weight)
         rel, _ = inlier_errors(r.model, Observations(o.ankle, o.upper, _offsets(o, r), o.group))
         score = float(np.median(rel))
         if score < best[0]:
@@ -219,8 +224,10 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
     if not starts:
         raise EstimationFailed("no focal length in the plausible range explains the "
                                "upright persons (check the image size and the skeleton)")
-    best = _robust_start(o, starts, cfg, image_size)
-    for _ in range(3 if o.n >= _MIN_RANSAC else 0):
+    # choosing among starts needs few detections; the rounds below use all of ``o``
+    best = _robust_start(o.take(np.sort(rng.permutation(o.n)[:_START_SET])), starts, cfg,
+                         image_size)
+    for _ in range(2 if o.n >= _MIN_RANSAC else 0):
         # re-classify with the noise level of the refined model, refit
         inl, _, _ = _classify(best.model, o, _offsets(o, best), True, cfg)
         if inl.sum() < 3:

@@ -27,6 +27,7 @@ from scipy.sparse import lil_matrix
 from cascalib.stages.single_view_solver import (
     GroundModel,
     Observations,
+    body_axes,
     dlt_estimate,
     inlier_errors,
 )
@@ -161,7 +162,7 @@ class _Problem:
 
     def __init__(self, obs: Observations, model: GroundModel, fit_c: bool,
                  height_groups: NDArray[np.int64], n_heights: int, prior_w: float,
-                 n_ratios: int, ratio_w: float, c_scale: float) -> None:
+                 n_ratios: int, ratio_w: float, c_scale: float, sideways: float) -> None:
         self.obs, self.n0, self.fit_c = obs, model.n, fit_c
         self.e1, self.e2 = _tangent_basis(model.n)
         self.c0, self.c_scale = model.c, c_scale
@@ -174,6 +175,8 @@ class _Problem:
         self.n_r, self.ratio_w = n_ratios, ratio_w
         self.valid = obs.valid
         self.n_base = 5 if fit_c else 4
+        self.sideways = sideways
+        self.along, self.across = body_axes(obs)
 
     def x0(self, model: GroundModel) -> F64:
         base = [np.log(model.f), 0.0, 0.0, np.log(model.d)]
@@ -204,9 +207,12 @@ class _Problem:
         residual is that of the best ankle, so ankle noise is treated like upper-point noise.
         """
         model, off = self.model(x), self.offsets(x)
-        ankle = model.corrected_ankles(self.obs, off)
+        ankle = model.corrected_ankles(self.obs, off, sideways=self.sideways)
         pred = model.predict_upper(ankle, off)
-        r = np.r_[(ankle - self.obs.ankle).ravel(), (pred - self.obs.upper)[self.valid].ravel()]
+        da = ankle - self.obs.ankle
+        ra = np.stack([np.sum(da * self.along, 1), self.sideways * np.sum(da * self.across, 1)],
+                      1)
+        r = np.r_[ra.ravel(), (pred - self.obs.upper)[self.valid].ravel()]
         return np.where(np.isfinite(r), r, _MISS_PX)
 
     def __call__(self, x: F64) -> F64:
@@ -271,7 +277,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
            track_heights: bool, height_sd_rel: float, min_track_detections: int,
            fit_ratios: bool, ratio_sd_rel: float,
            clusters: NDArray[np.int64], image_diag: float, loss: str = "huber",
-           f_scale: float = 2.0, max_nfev: int = 100) -> RefineResult:
+           f_scale: float = 2.0, max_nfev: int = 100, ankle_sideways: float = 1.0
+           ) -> RefineResult:
     """Nonlinear least squares on all inliers (see module docstring).
 
     Parameters
@@ -295,6 +302,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
         Image diagonal (px), scales the principal-point parameters.
     loss, f_scale : str, float
         Robust loss and its scale in robust residual s.d. of the starting model.
+    ankle_sideways : float
+        Weight of the ankle's position across the body axis relative to along it.
     """
     hg = np.full(obs.n, -1, dtype=np.int64)
     ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
@@ -306,7 +315,7 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     prior_w = max(sigma0, 0.05) / height_sd_rel
     n_r = obs.upper.shape[1] - 1 if fit_ratios else 0
     prob = _Problem(obs, model, fit_principal_point, hg, len(ids), prior_w,
-                    n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag)
+                    n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag, ankle_sideways)
     # grouped (sparse) differencing pays off only with many per-person height columns
     kw = dict(jac_sparsity=prob.sparsity()) if len(ids) > 8 else {}
     res = least_squares(prob, prob.x0(model), loss=loss, f_scale=max(f_scale * sigma0, 0.05),

@@ -135,14 +135,15 @@ class GroundModel:
         return self.predict_upper(obs.ankle, obs.offset) - obs.upper
 
     def corrected_ankles(self, obs: Observations, offset: F64 | None = None,
-                         eps: float = 0.5) -> F64:
+                         eps: float = 0.5, sideways: float = 1.0) -> F64:
         """Ankle pixels (N, 2) that best explain ankle *and* upper detections under this model.
 
         The ankle is as noisy as the upper points; predicting the uppers from the raw ankle
         biases the focal length (errors in variables: near the horizon a pixel of ankle noise
         moves the person far). One Gauss-Newton step per detection on its ankle pixel, minimising
         ``|a - a_obs|^2 + sum_k |u_k(a) - u_k_obs|^2``, vectorised, with the 2x2 Jacobians of
-        ``u_k(a)`` by central differences of ``eps`` px.
+        ``u_k(a)`` by central differences of ``eps`` px. ``sideways`` < 1 down-weights the
+        ankle's position across the body axis (see :func:`ankle_weights`).
         """
         off = obs.offset if offset is None else offset
         valid = obs.valid
@@ -156,13 +157,34 @@ class GroundModel:
                          - self.predict_upper(obs.ankle - step, off)) / (2 * eps)
         D = np.where(valid[..., None, None] & np.isfinite(D), D, 0.0)
         r = np.where(np.isfinite(r), r, 0.0)
-        H = np.eye(2) + np.einsum("nkij,nkil->njl", D, D)
+        H = ankle_weights(obs, sideways) + np.einsum("nkij,nkil->njl", D, D)
         g = np.einsum("nkij,nki->nj", D, r)
         delta = -np.linalg.solve(H, g[..., None])[..., 0]
         return obs.ankle + delta
 
     def flipped(self) -> GroundModel:
         return replace(self, n=-self.n)
+
+
+def body_axes(obs: Observations) -> tuple[F64, F64]:
+    """Unit image directions (N, 2) along (ankle to highest upper point) and across the body."""
+    k = np.nanargmax(np.where(obs.valid, obs.offset, -np.inf), axis=1)
+    v = obs.upper[np.arange(obs.n), k] - obs.ankle
+    with np.errstate(invalid="ignore", divide="ignore"):
+        along = v / np.linalg.norm(v, axis=1, keepdims=True)
+    along = np.where(np.isfinite(along), along, [0.0, -1.0])
+    return along, np.stack([-along[:, 1], along[:, 0]], 1)
+
+
+def ankle_weights(obs: Observations, sideways: float) -> F64:
+    """(N, 2, 2) information matrices of the ankle pixel: 1 along the body axis, ``sideways^2``
+    across it. A walking person's ankle centre swings sideways of the vertical through the
+    shoulders by several cm (gait, lean); treated as pixel noise of the same size as the upper
+    points' it tilts the body axes at random, which pulls the vertical vanishing point towards
+    the image and biases the focal length low (by 8-12 % on simulated walkers)."""
+    along, across = body_axes(obs)
+    return (along[:, :, None] * along[:, None, :]
+            + sideways ** 2 * across[:, :, None] * across[:, None, :])
 
 
 def hartley_scale(points: F64, centre: F64) -> float:

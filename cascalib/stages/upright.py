@@ -38,6 +38,7 @@ F64 = NDArray[np.float64]
 #: Upper points Stage I can use; each is the mean of the listed canonical joints.
 UPPER_POINTS: dict[str, tuple[str, ...]] = {
     "shoulder": ("left_shoulder", "right_shoulder"),
+    "hip": ("left_hip", "right_hip"),
     "neck": ("neck",),
     "head_top": ("head_top",),
 }

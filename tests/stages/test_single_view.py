@@ -196,7 +196,10 @@ def test_principal_point_estimated_on_rich_scene():
     assert auto.principal_point_estimated and not fixed.principal_point_estimated
     assert abs(auto.principal_point[0] - c[0]) < 10.0
     assert abs(auto.focal / cam.focal - 1) < 0.02
-    assert normal_error_deg(auto, cam) < 0.5 < normal_error_deg(fixed, cam)
+    assert normal_error_deg(auto, cam) < 0.5
+    # a principal point off along the horizon acts like a pan: it barely moves the normal but
+    # leaves residuals the fitted principal point removes
+    assert auto.diagnostics["sigma_px"] < 0.8 * fixed.diagnostics["sigma_px"]
 
 
 def test_track_heights_with_known_heights():
