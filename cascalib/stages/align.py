@@ -138,12 +138,14 @@ def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) ->
         dbscan_min_cluster_fraction=cfg.dbscan_min_cluster_fraction,
         max_step=cfg.max_speed / rate, max_gap=max(1, int(round(cfg.max_gap_seconds * rate))),
         min_length=cfg.min_tracklet_frames, jump_threshold=cfg.jump_threshold,
-        link_speed=cfg.link_speed / rate)
+        link_speed=cfg.link_speed / rate,
+        stance_speed=cfg.stance_speed / rate if cfg.stance_speed > 0 else None,
+        stance_smooth=cfg.stance_smooth_seconds * rate)
 
 
 def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
-                lanes: list[Lanes], fps_ref: float, cfg: AlignConfig,
-                rng: np.random.Generator) -> PairAlignment:
+                lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+                fps_ref: float, cfg: AlignConfig, rng: np.random.Generator) -> PairAlignment:
     """Offset candidates, ICP verification and continuous refinement for one pair."""
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
     longest = max(coarse[i].length, coarse[j].length) * coarse[i].step
@@ -176,7 +178,8 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best,
                       int(round(curve.candidates[k].offset)), sigma=cfg.refine_sigma,
                       estimate_rate=cfg.estimate_rate, scale_range=sr,
-                      margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref), rng=rng)
+                      margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref),
+                      noise_a=noise[i], noise_b=noise[j], rng=rng)
     logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
                 fine[i].camera, fine[j].camera, fit.offset, fit.rate,
                 np.degrees(fit.transform.angle), fit.rms, ambiguity)
@@ -350,10 +353,14 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
             for g, r, f in zip(ground, rho, fps, strict=True)]
     lanes = [dense_lanes(f) for f in fine]
+    # ground noise model per camera: one pixel moves a point at distance d by d^2 / (f h)
+    noise = [(c.center[:2], cfg.pixel_noise / (c.focal * max(c.center[2], 0.3)))
+             for c in plane_cameras]
     ij = [(i, j) for i in range(n) for j in range(i + 1, n)]
     seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
-        pairs = list(pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, fps_ref, cfg,
+        pairs = list(pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
+                                                    fps_ref, cfg,
                                                     np.random.default_rng(seeds[k])),
                               range(len(ij))))
     a, b, accepted = _global_time(n, ref, pairs, cfg)

@@ -42,6 +42,14 @@ class AlignConfig(BaseModel):
     jump_threshold: float = Field(
         0.5, gt=0, description="A point farther (m) than this from the running median of its "
         "tracklet is an outlier.")
+    stance_speed: float = Field(
+        0.15, ge=0, description="Ankles are weighted 1 / (v + stance_speed)^2 by their ground "
+        "speed v (m/s) so the standing foot dominates: a swinging ankle is off the plane and "
+        "back-projects decimetres away, differently per camera. 0 = plain ankle midpoint "
+        "(paper).")
+    stance_smooth_seconds: float = Field(
+        0.0, ge=0, description="Smoothing (s) of the ankle tracks before their speed is taken "
+        "for the stance weights (0: none).")
     min_tracklet_frames: int = Field(
         10, ge=2, description="Shorter tracklets are dropped (native frames).")
 
@@ -99,4 +107,8 @@ class AlignConfig(BaseModel):
         2, ge=1, description="Threads aligning camera pairs in parallel (numpy and the FFTs "
         "release the GIL).")
     refine_sigma: float = Field(
-        0.1, gt=0, description="Soft-L1 scale (m) of the sub-frame offset / rate fit.")
+        0.03, gt=0, description="Noise floor (m) of ground points in the sub-frame offset / "
+        "rate fit (ankle jitter of the gait); added to the per-camera range-dependent noise.")
+    pixel_noise: float = Field(
+        2.0, gt=0, description="Foot detection noise (px) of the ground noise model "
+        "d^2 / (f h) per pixel, which weights the sub-frame fit.")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
+from scipy.ndimage import gaussian_filter1d, median_filter
 from scipy.optimize import linear_sum_assignment
 from sklearn.cluster import DBSCAN
 
@@ -100,6 +100,66 @@ def foot_pixels(tracks: Tracks, min_confidence: float = 0.0) -> NDArray[np.float
         fill = np.isnan(out[..., 0]) & np.isfinite(mid[..., 0])
         out[fill] = mid[fill]
     return out
+
+
+def ankle_ground_points(tracks: Tracks, plane_camera: Camera, *, foot_height: float = 0.0,
+                        min_confidence: float = 0.0) -> NDArray[np.float64]:
+    """Each ankle back-projected on its own onto the plane ``z = foot_height``.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, n_persons, 2 (left, right), 2 (x, y))
+    """
+    can = tracks.canonical()
+    pair = can[:, :, [CANONICAL_INDEX["left_ankle"], CANONICAL_INDEX["right_ankle"]], :]
+    ok = np.isfinite(pair[..., 0]) & (np.nan_to_num(pair[..., 2], nan=-1.0) > min_confidence)
+    uv = np.where(ok[..., None], pair[..., :2], np.nan)
+    return plane_camera.backproject_to_plane(uv, z=foot_height)[..., :2]
+
+
+def stance_weighted(tl: Tracklet, ankles: NDArray[np.float64], v0: float,
+                    smooth: float = 2.0) -> Tracklet:
+    """Replace a tracklet's foot points by the ankles weighted towards the standing foot.
+
+    A swinging ankle is up to ~10 cm above the ground, which moves its back-projection along
+    the viewing ray by ``dz * d / h`` (decimetres at 10 m), differently in every camera; the
+    standing ankle is at the height the plane assumes. Weights ``1 / (v + v0)^2`` with ``v`` the
+    ankle's ground speed (m per frame) favour the standing foot, and give the midpoint in
+    double support.
+
+    Parameters
+    ----------
+    tl : Tracklet
+    ankles : ndarray, shape (n_frames, n_persons, 2, 2)
+        From :func:`ankle_ground_points`.
+    v0 : float
+        Speed (m per frame) below which an ankle counts as standing.
+    smooth : float
+        Gaussian s.d. (frames) of the ankle track before differentiating: give the same time
+        in every camera, else cameras at different frame rates weigh differently.
+    """
+    a = ankles[tl.frames, tl.slot]  # (n, 2 ankles, 2)
+    if len(tl) < 3:
+        return tl
+    v = np.full(a.shape[:2], np.nan)
+    for k in (0, 1):
+        # speed of the smoothed ankle track: detection noise must not look like a swing
+        fin = np.isfinite(a[:, k, 0])
+        if smooth > 0:
+            m = gaussian_filter1d(fin.astype(np.float64), smooth, mode="nearest")
+            sm = gaussian_filter1d(np.where(fin[:, None], a[:, k], 0.0), smooth, axis=0,
+                                   mode="nearest") / np.maximum(m, 1e-9)[:, None]
+        else:
+            m, sm = fin.astype(np.float64), a[:, k]
+        g = np.gradient(sm, tl.frames.astype(np.float64), axis=0)
+        v[:, k] = np.where(fin & (m > 0.3), np.linalg.norm(g, axis=1), np.nan)
+    ok = np.isfinite(v) & np.isfinite(a[..., 0])
+    w = np.where(ok, 1.0 / (np.nan_to_num(v) + v0) ** 2, 0.0)
+    both = ok.all(1)  # with one ankle only, the (pixel) midpoint fallback stays
+    xy = tl.xy.copy()
+    wsum = w[both].sum(1, keepdims=True)
+    xy[both] = (w[both, :, None] * a[both]).sum(1) / wsum
+    return Tracklet(tl.frames, xy, tl.slot)
 
 
 def ground_points(tracks: Tracks, plane_camera: Camera, *, foot_height: float = 0.0,
@@ -300,11 +360,15 @@ def ground_trajectories(tracks: Tracks, plane_camera: Camera, *, foot_height: fl
                         dbscan_eps: float = 0.6, dbscan_min_samples: int = 8,
                         dbscan_min_cluster_fraction: float = 0.02,
                         max_step: float = 0.35, max_gap: int = 3, min_length: int = 10,
-                        jump_threshold: float = 0.5, link_speed: float = 0.1) -> GroundTracks:
+                        jump_threshold: float = 0.5, link_speed: float = 0.1,
+                        stance_speed: float | None = 0.02, stance_smooth: float = 2.0
+                        ) -> GroundTracks:
     """Foot trajectories of one camera on its own ground plane, cleaned and linked.
 
     ``max_step``, ``link_speed`` (metres per frame) and ``max_gap`` (frames) are for the
-    camera's own frame rate; 0.35 m per frame is 10 m/s at 30 fps.
+    camera's own frame rate; 0.35 m per frame is 10 m/s at 30 fps. ``stance_speed`` (m per
+    frame, None to use the ankle midpoint) and ``stance_smooth`` (frames) are ``v0`` and
+    ``smooth`` of :func:`stance_weighted`.
 
     Returns
     -------
@@ -319,6 +383,10 @@ def ground_trajectories(tracks: Tracks, plane_camera: Camera, *, foot_height: fl
     tls = link_tracklets(xy, tracks.track_ids, max_gap=max_gap, max_step=max_step,
                          min_length=min_length, jump_threshold=jump_threshold,
                          link_speed=link_speed)
+    if stance_speed is not None:
+        ankles = ankle_ground_points(tracks, plane_camera, foot_height=foot_height,
+                                     min_confidence=min_confidence)
+        tls = [stance_weighted(tl, ankles, stance_speed, stance_smooth) for tl in tls]
     clean = np.full_like(xy, np.nan)
     out: list[Tracklet] = []
     for tl in tls:

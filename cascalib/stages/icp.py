@@ -275,6 +275,19 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
                      ib[fi, kb], np.sqrt(d2), int(ga.size))
 
 
+def _noise_sd(xa: NDArray[np.float64], xb: NDArray[np.float64],
+              noise_a: tuple[NDArray[np.float64], float] | None,
+              noise_b: tuple[NDArray[np.float64], float] | None, floor: float, scale: float
+              ) -> NDArray[np.float64]:
+    """Per-sample s.d. (m, A's frame) of ``x_a - T(x_b)`` under the ground noise models."""
+    var = np.full(len(xa), floor**2)
+    if noise_a is not None:
+        var += (noise_a[1] * np.sum((xa - noise_a[0]) ** 2, axis=1)) ** 2
+    if noise_b is not None:
+        var += (scale * noise_b[1] * np.sum((xb - noise_b[0]) ** 2, axis=1)) ** 2
+    return np.sqrt(var)
+
+
 @dataclass(frozen=True)
 class SyncFit:
     """Continuous pairwise clock and ground alignment.
@@ -297,13 +310,19 @@ class SyncFit:
 
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 2500,
+                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 6000,
+                noise_a: tuple[NDArray[np.float64], float] | None = None,
+                noise_b: tuple[NDArray[np.float64], float] | None = None,
                 rng: np.random.Generator | None = None) -> SyncFit:
     """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
 
     Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
     ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
     ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.).
+
+    ``noise_a`` / ``noise_b``: ``(centre_xy, k)`` of each camera's ground noise model
+    ``sigma(x) = sigma + k |x - centre|^2`` (metres): a pixel of error moves a ground point by
+    ``d^2 / (f h)`` at distance ``d`` from a camera at height ``h``, so far points weigh less.
     """
     rng = np.random.default_rng(rng)
     ua = icp.frames_a.astype(np.float64)
@@ -348,28 +367,34 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
         tr = Similarity2D(p[2], p[3:5], float(np.exp(p[5])))
         return tr.apply(out)
 
-    def resid(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        # one prior row keeps the rate near the fps prior when the overlap is too short to
-        # measure it (a few seconds cannot tell 0.1 % apart)
-        prior = sigma * p[1] * 1e-3 / rate_prior_sd
-        return np.r_[(xa - predict(p)).ravel(), prior]
+    def raw(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return xa - predict(p)
 
     p0 = np.r_[float(offset), 0.0, icp.transform.angle, icp.transform.t,
                np.log(icp.transform.scale)]
+    tr0 = Similarity2D(icp.transform.angle, icp.transform.t, icp.transform.scale)
+    w_sd = _noise_sd(xa, tr0.inverse().apply(xa), noise_a, noise_b, sigma, tr0.scale)
+
+    def resid(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        # one prior row keeps the rate near the fps prior when the overlap is too short to
+        # measure it (a few seconds cannot tell 0.1 % apart); residuals in noise s.d.
+        return np.r_[(raw(p) / w_sd[:, None]).ravel(), p[1] * 1e-3 / rate_prior_sd]
+
     ls = np.log(scale_range) + 1e-9
     lo = np.r_[offset - 6.0, -5.0 if estimate_rate else -1e-9, -np.inf, -np.inf, -np.inf, -ls]
     hi = np.r_[offset + 6.0, 5.0 if estimate_rate else 1e-9, np.inf, np.inf, np.inf, ls]
     p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
-    sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=sigma,
+    sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=2.0,
                         diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5], x_scale="jac")
-    r = sol.fun[:-1].reshape(-1, 2)
-    d = np.linalg.norm(r, axis=1)
-    inl = d < 3 * max(sigma, np.median(d) * 1.5)
+    rn = np.linalg.norm(sol.fun[:-1].reshape(-1, 2), axis=1)  # in noise s.d.
+    inl = rn < 3 * max(1.0, 1.5 * np.median(rn))
+    d = np.linalg.norm(raw(sol.x), axis=1)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
+    chi = float(np.sqrt(np.mean(rn[inl] ** 2) / 2)) if inl.any() else np.inf
     try:
         J = sol.jac[np.r_[np.repeat(inl, 2), True]]
         # smoothed samples are correlated over ~2 sqrt(pi) s.d.: inflate the covariance
-        cov = np.linalg.inv(J.T @ J) * rms**2 * max(1.0, 3.5 * margin / 3.0)
+        cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, 3.5 * margin / 3.0)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
     p = sol.x
