@@ -21,7 +21,7 @@ from service.api.deps import AppState, Dispatcher
 from service.api.routes import health, jobs
 from service.core.config import Settings
 from service.core.limits import BodyLimitMiddleware
-from service.core.metrics import Metrics
+from service.core.metrics import Metrics, MetricsMiddleware
 from service.core.problems import install_handlers
 from service.store import Store
 
@@ -112,13 +112,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description=DESCRIPTION, lifespan=lifespan)
     install_handlers(app)
 
-    @app.middleware("http")
-    async def _metrics(request, call_next):  # type: ignore[no-untyped-def]
-        state: AppState | None = getattr(request.app.state, "cascalib", None)
-        if state is None:
-            return await call_next(request)
-        return await state.metrics.middleware(request, call_next)
-
+    app.add_middleware(MetricsMiddleware)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
                            allow_methods=["GET", "POST", "DELETE"],

@@ -109,17 +109,21 @@ class Store:
         """Delete a job's folder (after its row is gone)."""
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
 
-    def sweep_orphans(self) -> int:
-        """Remove staging leftovers and job folders without a row (a crash mid-submission)."""
-        shutil.rmtree(self.staging_dir, ignore_errors=True)
-        self.staging_dir.mkdir(parents=True, exist_ok=True)
+    def sweep_orphans(self, min_age: float = 900.0) -> int:
+        """Remove what a crash mid-submission left: staging folders and job folders without a
+        row, older than ``min_age`` seconds (younger ones may be another API replica's
+        submission in progress)."""
+        import time
+
+        cutoff = time.time() - min_age
         with self.session() as session:
             known = set(session.scalars(select(Job.id)))
         removed = 0
-        for d in self.jobs_dir.iterdir():
-            if d.is_dir() and d.name not in known:
-                shutil.rmtree(d, ignore_errors=True)
-                removed += 1
+        for parent, keep in ((self.staging_dir, set()), (self.jobs_dir, known)):
+            for d in parent.iterdir():
+                if d.name not in keep and d.stat().st_mtime < cutoff:
+                    shutil.rmtree(d, ignore_errors=True) if d.is_dir() else d.unlink()
+                    removed += 1
         return removed
 
     def dispose(self) -> None:

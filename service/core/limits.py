@@ -20,6 +20,14 @@ class BodyTooLarge(ProblemError):
                          title="Payload too large")
 
 
+def _too_large(exc: BaseException) -> bool:
+    if isinstance(exc, BodyTooLarge):
+        return True
+    if isinstance(exc, BaseExceptionGroup):
+        return any(_too_large(e) for e in exc.exceptions)
+    return _too_large(exc.__cause__) if exc.__cause__ is not None else False
+
+
 class BodyLimitMiddleware:
     """Refuse bodies over ``max_bytes``: at once by Content-Length, else while reading."""
 
@@ -46,7 +54,21 @@ class BodyLimitMiddleware:
                 raise BodyTooLarge(self.max_bytes)
             return message
 
-        await self.app(scope, limited, send)
+        started = False
+
+        async def send_started(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, limited, send_started)
+        except Exception as exc:
+            # Normally the app's handler already answered 413; this is the fallback for a
+            # layer that wrapped the exception (e.g. in an ExceptionGroup).
+            if started or not _too_large(exc):
+                raise
+            await self._refuse(scope, send)
 
     async def _refuse(self, scope: Scope, send: Send) -> None:
         body = json.dumps({"type": "about:blank", "title": "Payload too large", "status": 413,

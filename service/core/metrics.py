@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable, Iterable
+from collections.abc import Iterable
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 from prometheus_client.core import GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
-from starlette.requests import Request
-from starlette.responses import Response
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service import store as st
 from service.store import Store
 
-__all__ = ["Metrics"]
+__all__ = ["Metrics", "MetricsMiddleware"]
 
 _STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
 
@@ -51,13 +50,39 @@ class Metrics:
                                 registry=self.registry)
         self.registry.register(_JobsCollector(store))
 
-    async def middleware(self, request: Request,
-                         call_next: Callable[[Request], Awaitable[Response]]) -> Response:
-        """Time every request; label by route template (bounded cardinality)."""
+    def observe(self, method: str, route: str, status: int, seconds: float) -> None:
+        """Record one answered request."""
+        self.latency.labels(method, route).observe(seconds)
+        self.requests.labels(method, route, str(status)).inc()
+
+
+class MetricsMiddleware:
+    """Pure ASGI middleware timing every request, labelled by route template (bounded
+    cardinality). Pure ASGI, not ``BaseHTTPMiddleware``, so exceptions raised while the body
+    streams in reach the exception handlers unwrapped."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        metrics: Metrics | None = None
+        if scope["type"] == "http":
+            state = getattr(scope["app"].state, "cascalib", None) if "app" in scope else None
+            metrics = getattr(state, "metrics", None)
+        if metrics is None:
+            await self.app(scope, receive, send)
+            return
         start = time.perf_counter()
-        response = await call_next(request)
-        route = request.scope.get("route")
-        name = getattr(route, "path", "unmatched")
-        self.latency.labels(request.method, name).observe(time.perf_counter() - start)
-        self.requests.labels(request.method, name, str(response.status_code)).inc()
-        return response
+        status = 500
+
+        async def send_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = int(message["status"])
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_status)
+        finally:
+            route = getattr(scope.get("route"), "path", "unmatched")
+            metrics.observe(scope["method"], route, status, time.perf_counter() - start)

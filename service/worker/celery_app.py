@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 import threading
 import time
@@ -53,6 +54,13 @@ def _worker_store(settings: Settings) -> Store:
         return _store
 
 
+def _stop_this_process() -> None:
+    """The job was cancelled: end this pool process now. Celery starts a fresh one, and the
+    message (acks_late + reject_on_worker_lost) goes back to the queue, where the next claim of
+    the job finds it cancelled and does nothing."""
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
 def create_celery(settings: Settings) -> Celery:
     """The Celery application (no connection is made until it is used)."""
     celery = Celery("cascalib", broker=settings.broker_url or "redis://127.0.0.1:6379/0")
@@ -78,7 +86,7 @@ def create_celery(settings: Settings) -> Celery:
         if attempt is None:
             return None  # duplicate message, or the job was cancelled meanwhile
         return execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
-                               limits=zip_limits(settings))
+                               limits=zip_limits(settings), on_lost=_stop_this_process)
 
     return celery
 

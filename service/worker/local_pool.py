@@ -3,8 +3,9 @@
 A dispatcher thread claims queued jobs (oldest first) while fewer than ``settings.workers`` run,
 and starts one process per job. Processes come from a ``forkserver`` that has imported the
 pipeline once (a job starts in milliseconds, not the seconds numpy/scipy/gtsam take to import),
-and is itself a clean single-threaded process, so a crash or a kill cannot corrupt the server. It watches them: a process that dies without recording an end (killed,
-out of memory, segfault) gets its job re-queued, at most ``max_attempts`` times, then failed
+and is itself a clean single-threaded process, so a crash or a kill cannot corrupt the server.
+The thread watches them: a process that dies without recording an end (killed, out of memory,
+segfault) gets its job re-queued, at most ``max_attempts`` times, then failed
 with the reason; a cancelled job's process is terminated. On start-up, jobs a previous server
 left running are treated the same way, so no job stays ``running`` after a crash.
 """

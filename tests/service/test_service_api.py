@@ -7,6 +7,7 @@ import io
 import json
 import time
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -143,6 +144,23 @@ def test_error_names_camera_and_client_file(client: httpx.Client) -> None:
     err = r.json()["errors"][0]
     assert err["camera"] == "side_left"
     assert err["file"] is None or err["file"].startswith("side_left.json")
+
+
+def test_streamed_body_over_limit(deployment: Deployment, client: httpx.Client) -> None:
+    """No Content-Length (chunked): the limit is enforced while the body streams in."""
+    before = stored_jobs(deployment)
+
+    def body() -> Iterator[bytes]:
+        yield (b'--xx\r\nContent-Disposition: form-data; name="files"; filename="cam0.json"'
+               b"\r\n\r\n")
+        for _ in range(MAX_UPLOAD // 2**16 + 2):
+            yield b" " * 2**16
+        yield b"\r\n--xx--\r\n"
+
+    r = client.post("/v1/jobs", content=body(),
+                    headers={"content-type": "multipart/form-data; boundary=xx"})
+    assert r.status_code == 413 and r.headers["content-type"] == PROBLEM
+    assert stored_jobs(deployment) == before
 
 
 def test_not_multipart(client: httpx.Client) -> None:

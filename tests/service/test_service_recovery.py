@@ -167,3 +167,33 @@ def test_kill_worker_mid_job_then_restart(kind: str, tmp_path: Path) -> None:
         dep.stop()
         if pg:
             pg.drop()
+
+
+@needs_pipeline
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["sqlite", "celery"])
+def test_cancel_running_job_stops_it(kind: str, tmp_path: Path) -> None:
+    dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_UPLOAD_BYTES=str(200 * 2**20))
+    try:
+        with dep.client(next_token()) as c:
+            job_id = submit(c, sim_files(tmp_path), {}).json()["id"]
+            deadline = time.monotonic() + 300
+            while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
+                assert time.monotonic() < deadline
+                time.sleep(0.2)
+            r = c.delete(f"/v1/jobs/{job_id}")
+            assert r.status_code == 200 and r.json()["status"] == "cancelled"
+            time.sleep(5)
+            job = c.get(f"/v1/jobs/{job_id}").json()
+            assert job["status"] == "cancelled" and job["attempts"] == 1
+            if kind == "sqlite":
+                assert dep.server is not None
+                assert _job_processes(dep.server.popen.pid) == []
+            assert not (dep.data_dir / "jobs" / job_id / "outputs").exists()
+            # The service keeps working after the cancellation.
+            again = submit(c).json()["id"]
+            assert wait_finished(c, again)["status"] in ("succeeded", "failed")
+    finally:
+        dep.stop()
+        if pg:
+            pg.drop()
