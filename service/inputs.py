@@ -44,9 +44,22 @@ def zip_limits(settings: Any) -> ZipLimits:
 
 
 def is_zip(path: Path) -> bool:
-    """Whether the file starts like a zip archive (local file header magic)."""
+    """Whether the upload is a zipped folder (of per-frame JSON files).
+
+    NumPy ``.npz`` files are zip archives too: a ``.npz`` name, or members that are all
+    ``.npy`` arrays, mean a keypoint file for the readers, not a folder.
+    """
     with path.open("rb") as fh:
-        return fh.read(4) == b"PK\x03\x04"
+        if fh.read(4) != b"PK\x03\x04":
+            return False
+    if path.suffix.lower() == ".npz":
+        return False
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = [n for n in zf.namelist() if not n.endswith("/")]
+    except (zipfile.BadZipFile, OSError):
+        return True  # a damaged zip: safe_extract reports it
+    return not (names and all(n.endswith(".npy") for n in names))
 
 
 def _member_name(info: zipfile.ZipInfo, file: str) -> str | None:
