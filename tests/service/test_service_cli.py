@@ -31,3 +31,33 @@ def test_serve_insecure_no_auth_opens_the_api(tmp_path: Path) -> None:
     finally:
         dep.stop()
     assert (tmp_path / "data" / "cascalib.db").is_file()  # the default SQLite store
+
+
+def test_stored_token_and_cors(tmp_path: Path) -> None:
+    env = make_env(tmp_path / "data", CASCALIB_CORS_ORIGINS="https://app.example")
+    del env["CASCALIB_API_TOKENS"]
+    r = subprocess.run([sys.executable, "-m", "service.tokens", "add", "lab-1"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    token = r.stdout.strip()
+    assert len(token) >= 40
+    db = (tmp_path / "data" / "cascalib.db").read_bytes()
+    assert token.encode() not in db  # only the hash is stored
+    dup = subprocess.run([sys.executable, "-m", "service.tokens", "add", "lab-1"], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert dup.returncode == 2 and "exists already" in dup.stderr
+    dep = Deployment("stored-token", env, tmp_path / "data", tmp_path)
+    dep.start_server()  # starts: a token is stored, although CASCALIB_API_TOKENS is unset
+    try:
+        assert httpx.get(dep.url + "/v1/jobs").status_code == 401
+        ok = httpx.get(dep.url + "/v1/jobs", headers={"Authorization": f"Bearer {token}"})
+        assert ok.status_code == 200
+        pre = httpx.options(dep.url + "/v1/jobs", headers={
+            "Origin": "https://app.example", "Access-Control-Request-Method": "POST",
+            "Access-Control-Request-Headers": "authorization,idempotency-key"})
+        assert pre.headers["access-control-allow-origin"] == "https://app.example"
+        other = httpx.options(dep.url + "/v1/jobs", headers={
+            "Origin": "https://evil.example", "Access-Control-Request-Method": "POST"})
+        assert "access-control-allow-origin" not in other.headers
+    finally:
+        dep.stop()
