@@ -30,14 +30,15 @@ from sqlalchemy import create_engine, text
 from service.models import utcnow
 
 
-def crash_state(dep: Deployment, job_id: str, *, attempts: int, worker: str) -> None:
+def crash_state(dep: Deployment, job_id: str, *, attempts: int, worker: str | None,
+                status: str = "running") -> None:
     """Put a job in the state a crash leaves behind."""
     engine = create_engine(dep.database_url.replace("postgresql://", "postgresql+psycopg://"))
     with engine.begin() as conn:
-        conn.execute(text("UPDATE jobs SET status='running', attempts=:a, worker=:w, "
+        conn.execute(text("UPDATE jobs SET status=:s, attempts=:a, worker=:w, "
                           "heartbeat_at=:hb, finished_at=NULL, error=NULL, stage='refine' "
                           "WHERE id=:id"),
-                     {"a": attempts, "w": worker, "id": job_id,
+                     {"s": status, "a": attempts, "w": worker, "id": job_id,
                       "hb": utcnow() - timedelta(minutes=10)})
     engine.dispose()
 
@@ -56,17 +57,20 @@ def test_server_crash_requeues_then_gives_up(local_deployment: Deployment) -> No
     dep = local_deployment
     token = next_token()
     with dep.client(token) as c:
-        ids = [submit(c).json()["id"] for _ in range(2)]
+        ids = [submit(c).json()["id"] for _ in range(3)]
         for i in ids:
             wait_finished(c, i)
     assert dep.server is not None
     dep.server.kill()  # SIGKILL: no orderly shutdown
     crash_state(dep, ids[0], attempts=1, worker="local:deadbeef00:1")
     crash_state(dep, ids[1], attempts=2, worker="local:deadbeef00:1")
+    crash_state(dep, ids[2], attempts=0, worker=None, status="queued")
     dep.start_server()
     with dep.client(token) as c:
         retried = wait_finished(c, ids[0])
         given_up = wait_finished(c, ids[1])
+        resumed = wait_finished(c, ids[2])
+    assert resumed["attempts"] == 1 and resumed["status"] in ("succeeded", "failed")
     assert retried["attempts"] == 2 and retried["status"] in ("succeeded", "failed")
     assert "server stopped" not in (retried["error"] or "")
     assert given_up["status"] == "failed" and given_up["attempts"] == 2
