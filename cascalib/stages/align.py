@@ -162,12 +162,12 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     if not any(_plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
         results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
-    scores = _evidence(results, cfg)
+    scores = _evidence(results, cfg, lanes[i], lanes[j])
     for k in np.argsort(scores)[::-1][:3]:
         r = results[k]
         if r is not None and scores[k] >= 0.5 * max(scores):
             results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
-    scores = _evidence(results, cfg)
+    scores = _evidence(results, cfg, lanes[i], lanes[j])
     if not scores or max(scores) <= 0:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0)
     k = int(np.argmax(scores))
@@ -179,7 +179,8 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                       int(round(curve.candidates[k].offset)), sigma=cfg.refine_sigma,
                       estimate_rate=cfg.estimate_rate, scale_range=sr,
                       margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref),
-                      noise_a=noise[i], noise_b=noise[j], rng=rng)
+                      noise_a=noise[i], noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd,
+                      rng=rng)
     logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
                 fine[i].camera, fine[j].camera, fit.offset, fit.rate,
                 np.degrees(fit.transform.angle), fit.rms, ambiguity)
@@ -194,13 +195,16 @@ def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: Ali
                     max_frames=frames, n_iter=8 if quick else 15)
 
 
-def _evidence(results: list[IcpResult | None], cfg: AlignConfig) -> list[float]:
-    """ICP evidence of each candidate at the noise level of the best one: one lap of a loop
-    off fits to a few decimetres, the true offset to the detection noise."""
+def _evidence(results: list[IcpResult | None], cfg: AlignConfig, la: Lanes, lb: Lanes
+              ) -> list[float]:
+    """ICP evidence of each candidate at the noise level of the best one (one lap of a loop
+    off fits to a few decimetres, the true offset to the detection noise), with identities
+    kept along tracklets."""
     rms = [r.rms for r in results if _plausible(r, cfg)]
     sig = max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
     # evidence per frame compared, so quick (subsampled) and full runs are comparable
-    return [r.evidence(sig) / max(1, r.n_frames) if r is not None else 0.0 for r in results]
+    return [r.evidence(sig, la, lb) / max(1, r.n_frames) if r is not None else 0.0
+            for r in results]
 
 
 def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:
@@ -274,6 +278,7 @@ def _global_space(n: int, ref: int, pairs: list[PairAlignment], scale_range: flo
     """Robust joint fit of all ground similarities to every accepted pair's matched points."""
     T0 = _spanning_init(n, ref, pairs)
     free = [c for c in range(n) if c != ref and T0[c] is not None]
+    pairs = [p for p in pairs if T0[p.i] is not None and T0[p.j] is not None]
     if not free or len(pairs) < 2:
         return T0
     pos = {c: k for k, c in enumerate(free)}

@@ -165,9 +165,26 @@ class IcpResult:
     distances: NDArray[np.float64]
     n_frames: int = 0
 
-    def evidence(self, sigma: float) -> float:
-        """Sum of ``exp(-d^2 / 2 sigma^2)`` over the matches."""
-        return float(np.exp(-0.5 * (self.distances / sigma) ** 2).sum())
+    def evidence(self, sigma: float, la: Lanes | None = None, lb: Lanes | None = None
+                 ) -> float:
+        """Sum of ``exp(-d^2 / 2 sigma^2)`` over the matches.
+
+        With the lanes, identities must persist: each tracklet of A counts only its matches
+        to its single best tracklet of B. People walking the same circle coincide now and then
+        at a wrong offset, but not for the length of a tracklet.
+        """
+        w = np.exp(-0.5 * (self.distances / sigma) ** 2)
+        if la is None or lb is None:
+            return float(w.sum())
+        ta = la.tid[self.frames_a, self.lanes_a]
+        tb = lb.tid[self.frames_b, self.lanes_b]
+        key = ta.astype(np.int64) * (int(tb.max(initial=0)) + 2) + (tb + 1)
+        uk, inv = np.unique(key, return_inverse=True)
+        per_pair = np.bincount(inv.ravel(), weights=w, minlength=uk.size)
+        best: dict[int, float] = {}
+        for k, v in zip(uk // (int(tb.max(initial=0)) + 2), per_pair, strict=True):
+            best[int(k)] = max(best.get(int(k), 0.0), float(v))
+        return float(sum(best.values()))
 
 
 def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int) -> NDArray[np.int64]:

@@ -297,11 +297,39 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     score = smooth.max(axis=1)
     if max_offset is not None:
         score = np.where(np.abs(offsets) <= max_offset, score, 0.0)
-    cands = _peaks(offsets, score, smooth, angle_bins, n_candidates, nms_frames)
+    cands = _peaks(offsets, score, smooth, angle_bins, n_candidates - n_candidates // 2,
+                   nms_frames)
+    # Large offsets overlap little and collect few votes: also take the best peaks of the
+    # vote per sqrt(overlap), so a short true overlap can beat a long periodic near-fit in
+    # the (per-frame) ICP verification.
+    overlap = _overlap(a, b, n_off)
+    norm = score / np.sqrt(np.maximum(overlap, 4 * min_overlap))
+    for c in _peaks(offsets, norm, smooth, angle_bins, n_candidates, nms_frames):
+        if len(cands) >= n_candidates:
+            break
+        if all(abs(c.offset - d.offset) >= nms_frames for d in cands):
+            i = int(np.argmin(np.abs(offsets - c.offset)))
+            cands.append(SyncCandidate(c.offset, c.angle, float(score[i])))
     ratio = cands[1].score / cands[0].score if len(cands) > 1 and cands[0].score > 0 else 0.0
     logger.debug("sync %s-%s: %d chunks, best offset %.1f (ratio %.2f)", a.camera, b.camera,
                  len(chunks), cands[0].offset if cands else np.nan, ratio)
     return SyncCurve(offsets, score, cands, float(ratio))
+
+
+def _overlap(a: GridTrack, b: GridTrack, n_off: int) -> NDArray[np.float64]:
+    """Grid samples where both cameras see someone, per offset index (as in the vote)."""
+    def present(t: GridTrack) -> NDArray[np.float64]:
+        m = np.zeros(t.length + max((s + len(x) for s, x in zip(t.start, t.xy, strict=True)),
+                                    default=0))
+        for s0, xy in zip(t.start, t.xy, strict=True):
+            m[s0 + np.flatnonzero(np.isfinite(xy[:, 0]))] = 1.0
+        return m
+    ma, mb = present(a), present(b)
+    n_fft = sfft.next_fast_len(ma.size + mb.size)
+    corr = sfft.irfft(sfft.rfft(ma, n_fft) * np.conj(sfft.rfft(mb, n_fft)), n_fft)
+    # offset index k <-> a index = b index + (k - (b.length - 1))
+    d = np.arange(n_off) - (b.length - 1)
+    return np.maximum(np.round(corr[d % n_fft]), 0.0)
 
 
 def _peaks(offsets: NDArray[np.float64], score: NDArray[np.float64], hist: NDArray[np.float64],
