@@ -78,9 +78,9 @@ class AlignConfig(BaseModel):
     estimate_rate: bool = Field(
         True, description="Estimate the residual frame-rate ratio on top of the fps prior.")
     rate_prior_sd: float = Field(
-        3e-4, gt=0, description="Prior s.d. of the frame-rate ratio around the fps/timestamp "
-        "prior (3e-4 = 300 ppm, above consumer clock drift); a mislabelled 29.97/30 fps "
-        "(1e-3) is still found when the overlap measures it, short overlaps keep the prior.")
+        1e-3, gt=0, description="Prior s.d. of the frame-rate ratio around the fps/timestamp "
+        "prior (1e-3: a 29.97 fps camera labelled 30 fps, ten times consumer clock drift); "
+        "overlaps too short to measure the rate keep the prior.")
     offset_tolerance: float = Field(
         2.0, gt=0, description="Pairs whose offset disagrees with the globally consistent "
         "solution by more than this (frames) are rejected (cycle consistency).")
