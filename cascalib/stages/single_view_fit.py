@@ -90,9 +90,26 @@ def _clusters(obs: Observations, size: tuple[int, int]) -> NDArray[np.int64]:
     return np.where(obs.group >= 0, obs.group, cells)
 
 
-def _offsets(obs: Observations, ref: RefineResult) -> F64:
-    """Offsets with the refined upper-point ratios and per-person heights applied."""
-    scale = np.array([ref.height_scale.get(int(g), 1.0) for g in obs.group])
+def _offsets(obs: Observations, ref: RefineResult, max_rel: float = 0.0) -> F64:
+    """Offsets with the refined upper-point ratios and per-person heights applied.
+
+    With ``max_rel`` > 0, tracked persons the refinement has no height for (e.g. tall people
+    RANSAC rejected at the assumed height) get one from the median ratio of their observed to
+    predicted ankle-to-shoulder lengths, if within ``1 +- max_rel``; they can then rejoin.
+    """
+    heights = dict(ref.height_scale)
+    missing = np.setdiff1d(obs.group[obs.group >= 0], list(heights))
+    if max_rel > 0 and len(missing):
+        base = obs.offset * ref.ratio_scale[None, :]
+        pred = ref.model.predict_upper(obs.ankle, base)[:, 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = (np.linalg.norm(obs.upper[:, 0] - obs.ankle, axis=1)
+                     / np.linalg.norm(pred - obs.ankle, axis=1))
+        for g in missing:
+            r = ratio[(obs.group == g) & np.isfinite(ratio)]
+            if r.size and abs(np.median(r) - 1) < max_rel:
+                heights[int(g)] = float(np.median(r))
+    scale = np.array([heights.get(int(g), 1.0) for g in obs.group])
     return obs.offset * ref.ratio_scale[None, :] * scale[:, None]
 
 
@@ -118,6 +135,11 @@ def _classify(model: GroundModel, obs: Observations, offsets: F64, adaptive: boo
     return ok, rel, rel * ph
 
 
+def _max_height_rel(cfg: SingleViewConfig) -> float:
+    """Largest relative height deviation a tracked person may be given (3 prior s.d.)."""
+    return 3.0 * cfg.height_sd / cfg.default_height if cfg.track_heights else 0.0
+
+
 def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c: bool,
             size: tuple[int, int]) -> RefineResult:
     return refine(obs, model, fit_principal_point=fit_c, track_heights=cfg.track_heights,
@@ -125,7 +147,8 @@ def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c:
                   min_track_detections=cfg.min_track_detections,
                   fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                   clusters=_clusters(obs, size), image_diag=float(np.hypot(*size)),
-                  loss=cfg.loss, ankle_sideways=cfg.ankle_sideways_weight)
+                  loss=cfg.loss, ankle_sideways=cfg.ankle_sideways_weight,
+                  height_nuisance=cfg.height_sd > 0)
 
 
 def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleViewConfig,
@@ -229,7 +252,7 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
                          image_size)
     for _ in range(2 if o.n >= _MIN_RANSAC else 0):
         # re-classify with the noise level of the refined model, refit
-        inl, _, _ = _classify(best.model, o, _offsets(o, best), True, cfg)
+        inl, _, _ = _classify(best.model, o, _offsets(o, best, _max_height_rel(cfg)), True, cfg)
         if inl.sum() < 3:
             break
         best = _refine(o.take(inl), best.model, cfg, False, image_size)
@@ -249,11 +272,12 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
             cfg: SingleViewConfig, diag: dict[str, Any]) -> SingleViewFit:
     """Classify every detection, build the interval and refuse untrustworthy results."""
     model = best.model
-    offsets = _offsets(obs, best)
+    offsets = _offsets(obs, best, _max_height_rel(cfg))
     inliers, rel, px = _classify(model, obs, offsets, True, cfg)
     z = float(norm.ppf(0.5 + cfg.confidence_level / 2))
     sd = best.log_f_sd if np.isfinite(best.log_f_sd) else np.inf
-    lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
+    with np.errstate(over="ignore"):
+        lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
     pitch = float(np.degrees(np.arcsin(np.clip(-model.n[2], -1, 1))))
     ankle_ratio = cfg.joint_height_ratios["ankle"]
     diag.update(pitch_deg=pitch, sigma_px=best.sigma_px, confidence_level=cfg.confidence_level,

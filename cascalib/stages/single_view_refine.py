@@ -30,6 +30,7 @@ from cascalib.stages.single_view_solver import (
     body_axes,
     dlt_estimate,
     inlier_errors,
+    weigh_along,
 )
 
 __all__ = ["RansacResult", "RefineResult", "ransac", "refine", "spatial_cells"]
@@ -177,6 +178,7 @@ class _Problem:
         self.n_base = 5 if fit_c else 4
         self.sideways = sideways
         self.along, self.across = body_axes(obs)
+        self.w_along = np.ones(obs.upper.shape[:2])
 
     def x0(self, model: GroundModel) -> F64:
         base = [np.log(model.f), 0.0, 0.0, np.log(model.d)]
@@ -207,12 +209,14 @@ class _Problem:
         residual is that of the best ankle, so ankle noise is treated like upper-point noise.
         """
         model, off = self.model(x), self.offsets(x)
-        ankle = model.corrected_ankles(self.obs, off, sideways=self.sideways)
+        ankle = model.corrected_ankles(self.obs, off, sideways=self.sideways,
+                                       along_weight=self.w_along)
         pred = model.predict_upper(ankle, off)
         da = ankle - self.obs.ankle
         ra = np.stack([np.sum(da * self.along, 1), self.sideways * np.sum(da * self.across, 1)],
                       1)
-        r = np.r_[ra.ravel(), (pred - self.obs.upper)[self.valid].ravel()]
+        ru = weigh_along(pred - self.obs.upper, self.along, self.across, self.w_along)
+        r = np.r_[ra.ravel(), ru[self.valid].ravel()]
         return np.where(np.isfinite(r), r, _MISS_PX)
 
     def __call__(self, x: F64) -> F64:
@@ -277,8 +281,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
            track_heights: bool, height_sd_rel: float, min_track_detections: int,
            fit_ratios: bool, ratio_sd_rel: float,
            clusters: NDArray[np.int64], image_diag: float, loss: str = "huber",
-           f_scale: float = 2.0, max_nfev: int = 100, ankle_sideways: float = 1.0
-           ) -> RefineResult:
+           f_scale: float = 2.0, max_nfev: int = 100, ankle_sideways: float = 1.0,
+           height_nuisance: bool = False) -> RefineResult:
     """Nonlinear least squares on all inliers (see module docstring).
 
     Parameters
@@ -304,6 +308,9 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
         Robust loss and its scale in robust residual s.d. of the starting model.
     ankle_sideways : float
         Weight of the ankle's position across the body axis relative to along it.
+    height_nuisance : bool
+        Treat the height of persons without their own height parameter as uncertain (relative
+        s.d. ``height_sd_rel``): down-weights residuals along their body axis accordingly.
     """
     hg = np.full(obs.n, -1, dtype=np.int64)
     ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
@@ -311,12 +318,22 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
         g, counts = np.unique(obs.group[obs.group >= 0], return_counts=True)
         ids = g[counts >= min_track_detections]
         hg = np.where(np.isin(obs.group, ids), np.searchsorted(ids, obs.group), -1)
-    sigma0 = _robust_sigma((model.residuals(obs)[obs.valid]).ravel())
+    along, across = body_axes(obs)
+    r0 = weigh_along(model.residuals(obs), along, across, np.ones(obs.upper.shape[:2]))
+    # pixel noise from the residuals across the body axis, which unknown heights do not touch
+    sigma0 = _robust_sigma(r0[..., 1][obs.valid])
     prior_w = max(sigma0, 0.05) / height_sd_rel
     n_r = obs.upper.shape[1] - 1 if fit_ratios else 0
     prob = _Problem(obs, model, fit_principal_point, hg, len(ids), prior_w,
                     n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag, ankle_sideways)
     # grouped (sparse) differencing pays off only with many per-person height columns
+    if height_nuisance:
+        # persons without a height of their own: their unknown height error (relative s.d.
+        # height_sd_rel) stretches the residual along the body axis by height_sd_rel * length;
+        # marginalised, it divides that component by sqrt(1 + (height_sd_rel L / sigma)^2)
+        length = np.linalg.norm(obs.upper - obs.ankle[:, None, :], axis=-1)
+        w = 1.0 / np.sqrt(1.0 + (height_sd_rel * length / max(sigma0, 0.05)) ** 2)
+        prob.w_along = np.where(np.isfinite(w) & (hg[:, None] < 0), w, 1.0)
     kw = dict(jac_sparsity=prob.sparsity()) if len(ids) > 8 else {}
     res = least_squares(prob, prob.x0(model), loss=loss, f_scale=max(f_scale * sigma0, 0.05),
                         x_scale="jac", max_nfev=max_nfev, ftol=1e-8, xtol=1e-10, **kw)

@@ -23,6 +23,7 @@ Derivation - Details". R. Hartley, "In defense of the eight-point algorithm", PA
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -135,7 +136,8 @@ class GroundModel:
         return self.predict_upper(obs.ankle, obs.offset) - obs.upper
 
     def corrected_ankles(self, obs: Observations, offset: F64 | None = None,
-                         eps: float = 0.5, sideways: float = 1.0) -> F64:
+                         eps: float = 0.5, sideways: float = 1.0,
+                         along_weight: F64 | None = None) -> F64:
         """Ankle pixels (N, 2) that best explain ankle *and* upper detections under this model.
 
         The ankle is as noisy as the upper points; predicting the uppers from the raw ankle
@@ -143,7 +145,8 @@ class GroundModel:
         moves the person far). One Gauss-Newton step per detection on its ankle pixel, minimising
         ``|a - a_obs|^2 + sum_k |u_k(a) - u_k_obs|^2``, vectorised, with the 2x2 Jacobians of
         ``u_k(a)`` by central differences of ``eps`` px. ``sideways`` < 1 down-weights the
-        ankle's position across the body axis (see :func:`ankle_weights`).
+        ankle's position across the body axis (see :func:`ankle_weights`); ``along_weight``
+        (N, K) scales the upper residuals' components along the body axis.
         """
         off = obs.offset if offset is None else offset
         valid = obs.valid
@@ -157,6 +160,11 @@ class GroundModel:
                          - self.predict_upper(obs.ankle - step, off)) / (2 * eps)
         D = np.where(valid[..., None, None] & np.isfinite(D), D, 0.0)
         r = np.where(np.isfinite(r), r, 0.0)
+        if along_weight is not None:
+            along, across = body_axes(obs)
+            r = weigh_along(r, along, across, along_weight)
+            D = np.stack([weigh_along(D[..., j], along, across, along_weight)
+                          for j in range(2)], -1)
         H = ankle_weights(obs, sideways) + np.einsum("nkij,nkil->njl", D, D)
         g = np.einsum("nkij,nki->nj", D, r)
         delta = -np.linalg.solve(H, g[..., None])[..., 0]
@@ -174,6 +182,12 @@ def body_axes(obs: Observations) -> tuple[F64, F64]:
         along = v / np.linalg.norm(v, axis=1, keepdims=True)
     along = np.where(np.isfinite(along), along, [0.0, -1.0])
     return along, np.stack([-along[:, 1], along[:, 0]], 1)
+
+
+def weigh_along(v: F64, along: F64, across: F64, w: F64) -> F64:
+    """Vectors (N, K, 2) in body-axis components ``(w * along, across)``."""
+    return np.stack([w * np.einsum("nki,ni->nk", v, along),
+                     np.einsum("nki,ni->nk", v, across)], -1)
 
 
 def ankle_weights(obs: Observations, sideways: float) -> F64:
@@ -330,7 +344,9 @@ def grid_estimate(obs: Observations, c: F64, f_range: tuple[float, float],
         na = np.einsum("gni,gi->gn", ra, n)
         d_all = np.where(valid, -s_ * na[:, :, None], np.nan)
         d_all = np.where(d_all > 0, d_all, np.nan)
-        d = np.nanmedian(d_all.reshape(len(fs), -1), axis=1)             # (S,)
+        with warnings.catch_warnings():  # candidates with no valid distance: NaN, dropped
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.nanmedian(d_all.reshape(len(fs), -1), axis=1)         # (S,)
         depth = -d[:, None] / na                                          # ankle ray scale
         U = (depth[..., None] * ra)[:, :, None, :] + obs.offset[None, ..., None] * n[:, None,
                                                                                    None, :]
