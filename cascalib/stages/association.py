@@ -38,6 +38,10 @@ log = logging.getLogger(__name__)
 _ANKLES = [CANONICAL_INDEX["left_ankle"], CANONICAL_INDEX["right_ankle"]]
 _HIP = CANONICAL_INDEX["mid_hip"]
 _LR_HIPS = [CANONICAL_INDEX["left_hip"], CANONICAL_INDEX["right_hip"]]
+#: Joints that judge a view's consistency: spread over the body, reliably detected.
+_CHECK_JOINTS = [CANONICAL_INDEX[n] for n in (
+    "nose", "neck", "left_shoulder", "right_shoulder", "left_wrist", "right_wrist", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle")]
 #: Typical fraction of the body height at the hip joints (Winter, Biomechanics, 2009: 0.53).
 HIP_FRACTION = 0.53
 
@@ -57,12 +61,16 @@ class Association:
         Person track over reference times (-1 when not linked).
     ground : ndarray, shape (G, 2)
         Ground position (metres) from the cameras used for the association.
+    residual : ndarray, shape (G,), optional
+        Worst view's median reprojection error after triangulation, as a fraction of the
+        person's image size (a wrong match shows here first).
     """
 
     times: NDArray[np.float64]
     obs: NDArray[np.float64]
     tracks: NDArray[np.int64]
     ground: NDArray[np.float64]
+    residual: NDArray[np.float64] | None = None
 
     @property
     def n_groups(self) -> int:
@@ -71,7 +79,8 @@ class Association:
     def subset(self, index: NDArray[np.int64]) -> Association:
         """The groups ``index`` only."""
         return Association(self.times[index], self.obs[index], self.tracks[index],
-                           self.ground[index])
+                           self.ground[index],
+                           None if self.residual is None else self.residual[index])
 
 
 # -- 1. temporal alignment -----------------------------------------------------------------------
@@ -234,9 +243,62 @@ def _cluster_time(grounds: list[NDArray[np.float64]], gate: float) -> NDArray[np
     return np.array(members, dtype=np.int64)
 
 
+def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
+                 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Clusters of at least two views at every time: (time index (G,), slots (G, C))."""
+    n_cams = len(grounds)
+    t_idx, slots = [], []
+    for t in range(grounds[0].shape[0]):
+        cl = _cluster_time([g[t] for g in grounds], gate_m)
+        cl = cl[(cl >= 0).sum(1) >= 2]
+        t_idx.append(np.full(len(cl), t))
+        slots.append(cl)
+    t_all = np.concatenate(t_idx) if t_idx else np.zeros(0, int)
+    s_all = np.concatenate(slots) if slots else np.zeros((0, n_cams), int)
+    return t_all, s_all
+
+
+def _align_grounds(grounds: list[NDArray[np.float64]], t_all: NDArray[np.int64],
+                   s_all: NDArray[np.int64], reference: int) -> list[NDArray[np.float64]]:
+    """Warp each camera's ground positions onto the others' by a robust 2D affine map.
+
+    Calibration errors of a few degrees move a camera's ground positions by metres at shallow
+    viewing angles, but smoothly: an affine map fitted to the first clusters removes most of it,
+    so the second clustering can use the same gate with far fewer wrong matches.
+    """
+    out = list(grounds)
+    for c in range(len(grounds)):
+        if c == reference:
+            continue
+        rows = np.flatnonzero((s_all[:, c] >= 0) & ((s_all >= 0).sum(1) >= 2))
+        src = grounds[c][t_all[rows], s_all[rows, c]]
+        dst = np.zeros_like(src)
+        n = np.zeros(len(rows))
+        for o in range(len(grounds)):
+            if o == c:
+                continue
+            has = s_all[rows, o] >= 0
+            dst[has] += grounds[o][t_all[rows[has]], s_all[rows[has], o]]
+            n[has] += 1
+        ok = (n > 0) & np.isfinite(src).all(1)
+        dst = dst[ok] / n[ok, None]
+        src = src[ok]
+        if len(src) < 20:
+            continue
+        A = np.c_[src, np.ones(len(src))]
+        w = np.ones(len(src))
+        for _ in range(5):  # IRLS with Huber weights (0.3 m)
+            M = np.linalg.lstsq(A * w[:, None], dst * w[:, None], rcond=None)[0]
+            r = np.linalg.norm(A @ M - dst, axis=1)
+            w = np.sqrt(np.where(r < 0.3, 1.0, 0.3 / np.maximum(r, 1e-9)))
+        g = grounds[c]
+        out[c] = (np.c_[g.reshape(-1, 2), np.ones(g.shape[0] * g.shape[1])] @ M).reshape(g.shape)
+    return out
+
+
 def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: NDArray[np.float64],
               *, height: float, ankle_height: float, gate_m: float, consistency: float,
-              huber_px: float = 4.0) -> Association:
+              huber_px: float = 4.0, align_ground: int = 0, reference: int = 0) -> Association:
     """Associate persons across cameras at every reference time.
 
     Parameters
@@ -254,6 +316,10 @@ def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: ND
     consistency : float
         Largest median reprojection error of a view after triangulation, as a fraction of the
         person's size in that image.
+    align_ground : int
+        Rounds of per-camera affine ground alignment before re-clustering (for poor cameras).
+    reference : int
+        Camera whose ground positions are not warped.
 
     Returns
     -------
@@ -263,14 +329,10 @@ def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: ND
     n_cams = len(cameras)
     grounds = [ground_positions(cam, v, height=height, ankle_height=ankle_height)
                for cam, v in zip(cameras, views, strict=True)]
-    t_idx, slots = [], []
-    for t in range(len(times)):
-        cl = _cluster_time([g[t] for g in grounds], gate_m)
-        cl = cl[(cl >= 0).sum(1) >= 2]
-        t_idx.append(np.full(len(cl), t))
-        slots.append(cl)
-    t_all = np.concatenate(t_idx) if t_idx else np.zeros(0, int)
-    s_all = np.concatenate(slots) if slots else np.zeros((0, n_cams), int)
+    t_all, s_all = _cluster_all(grounds, gate_m)
+    for _ in range(align_ground):
+        grounds = _align_grounds(grounds, t_all, s_all, reference)
+        t_all, s_all = _cluster_all(grounds, gate_m)
     obs = np.full((len(t_all), n_cams, 26, 3), np.nan)
     ground = np.zeros((len(t_all), 2))
     n_g = np.zeros(len(t_all))
@@ -281,17 +343,18 @@ def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: ND
         ground[has] += g
         n_g[has] += 1
     ground /= np.maximum(n_g, 1)[:, None]
-    obs = check_consistency(obs, cameras, consistency, huber_px=huber_px)
+    obs, residual = check_consistency(obs, cameras, consistency, huber_px=huber_px)
     keep = (np.isfinite(obs[..., 0]).any(-1).sum(1) >= 2)
     log.info("associated %d person-frames over %d reference times (%d dropped as inconsistent)",
              keep.sum(), len(times), (~keep).sum())
     assoc = Association(times[t_all[keep]], obs[keep], np.full(keep.sum(), -1, dtype=np.int64),
-                        ground[keep])
+                        ground[keep], residual[keep])
     return link_tracks(assoc)
 
 
 def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance: float,
-                      *, huber_px: float = 4.0) -> NDArray[np.float64]:
+                      *, huber_px: float = 4.0
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Remove views whose keypoints disagree with the group's robust triangulation.
 
     Parameters
@@ -302,16 +365,20 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
 
     Returns
     -------
-    ndarray, shape (G, C, 26, 3)
+    obs : ndarray, shape (G, C, 26, 3)
         ``obs`` with inconsistent views set to NaN.
+    residual : ndarray, shape (G,)
+        Largest relative error among the kept views (NaN if none).
     """
     n_g, n_cams = obs.shape[:2]
     if n_g == 0:
-        return obs
-    uv = obs[..., :2].transpose(1, 0, 2, 3).reshape(n_cams, -1, 2)
-    conf = obs[..., 2].transpose(1, 0, 2).reshape(n_cams, -1)
-    _, err = triangulate(cameras, uv, conf, huber_px=huber_px)
-    err = err.reshape(n_cams, n_g, 26).transpose(1, 0, 2)
+        return obs, np.zeros(0)
+    sub = obs[:, :, _CHECK_JOINTS]
+    n_j = len(_CHECK_JOINTS)
+    uv = sub[..., :2].transpose(1, 0, 2, 3).reshape(n_cams, -1, 2)
+    conf = sub[..., 2].transpose(1, 0, 2).reshape(n_cams, -1)
+    _, err = triangulate(cameras, uv, conf, huber_px=huber_px, n_iter=2)
+    err = err.reshape(n_cams, n_g, n_j).transpose(1, 0, 2)
     with _quiet():
         med = np.nanmedian(err, axis=-1)  # (G, C)
         ext = np.nanmax(obs[..., :2], axis=2) - np.nanmin(obs[..., :2], axis=2)
@@ -320,7 +387,10 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
     # only judge groups that keep two views: with a 2-view group both views get the same error
     out = obs.copy()
     out[bad] = np.nan
-    return out
+    rel = np.where(bad, np.nan, med / size)
+    with _quiet():
+        residual = np.nanmax(rel, axis=1)
+    return out, residual
 
 
 # -- 3. tracks over time ---------------------------------------------------------------------------
@@ -357,4 +427,4 @@ def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0
                 tracks[i] = next_id
                 next_id += 1
             last_pos[int(tracks[i])] = (float(t), assoc.ground[i])
-    return Association(assoc.times, assoc.obs, tracks, assoc.ground)
+    return Association(assoc.times, assoc.obs, tracks, assoc.ground, assoc.residual)

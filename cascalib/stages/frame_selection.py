@@ -56,7 +56,7 @@ def group_quality(assoc: Association, joints: NDArray[np.int64]) -> NDArray[np.f
 
 def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_select: int,
                   joints: NDArray[np.int64], *, n_time_bins: int = 50, floor_cell_m: float = 1.0,
-                  image_grid: int = 4) -> NDArray[np.int64]:
+                  image_grid: int = 4, residual_quantile: float = 0.75) -> NDArray[np.int64]:
     """Indices of at most ``n_select`` groups, spread over time, floor and image.
 
     Parameters
@@ -71,6 +71,8 @@ def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_sele
         Canonical joints used by the refinement (for the quality score).
     n_time_bins, floor_cell_m, image_grid : int, float, int
         Cell sizes of the three coverage criteria.
+    residual_quantile : float
+        Groups whose association residual is above this quantile are not selected.
 
     Returns
     -------
@@ -78,7 +80,12 @@ def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_sele
         Sorted group indices, ``n = min(n_select, number of groups with quality > 0)``.
     """
     quality = group_quality(assoc, joints)
-    usable = np.flatnonzero(quality > 0)
+    ok = quality > 0
+    if assoc.residual is not None and np.isfinite(assoc.residual).any():
+        # the least consistent quarter holds most wrong matches (cheap insurance, any round)
+        cut = np.nanpercentile(assoc.residual, 100 * residual_quantile)
+        ok &= np.nan_to_num(assoc.residual, nan=np.inf) <= cut
+    usable = np.flatnonzero(ok)
     if usable.size <= n_select:
         return usable
     cells = _cells(assoc.subset(usable), image_sizes, n_time_bins=n_time_bins,

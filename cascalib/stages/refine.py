@@ -240,7 +240,7 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
     obs = assoc.obs.copy()
     # a joint is a variable only with two usable observations: drop weak ones before triangulating
     obs[np.nan_to_num(obs[..., 2]) < cfg.min_confidence] = np.nan
-    assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground)
+    assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground, assoc.residual)
     points, err = triangulate_groups(assoc, cameras, joints)
     e = err[np.isfinite(err)]
     # median of a 2D error norm is 1.18 sigma (chi, 2 dof)
@@ -296,30 +296,34 @@ def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Cam
     return float(np.median(e)) if e.size else float("inf")
 
 
-def _distortion_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
-                     cfg: RefineConfig, kw: dict, rng: np.random.Generator):  # noqa: ANN202
-    """Free principal point and distortion (with priors); keep only if held-out error drops."""
-    prob = _make_problem(assoc.subset(sel), cameras, cfg, model="ds2", **kw)
+def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
+                     cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
+                     mode: str, min_gain: float):  # noqa: ANN202
+    """A pass with more intrinsics free (with priors); kept if held-out frames agree.
+
+    ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
+    person-frames (not in the graph) drops by at least ``min_gain`` (relative; may be negative).
+    """
+    prob = _make_problem(assoc.subset(sel), cameras, cfg, model=model, **kw)
+    prob.sigma_px = cfg.sigma_px  # the cameras are already refined: no graduation
     try:
-        cams2, _, info, graph, values = solve(prob, cfg)
+        res = solve(prob, cfg)
     except RefinementFailed as exc:
-        log.warning("distortion pass failed, keeping the pinhole cameras: %s", exc)
+        log.warning("%s pass failed, keeping the previous cameras: %s", model, exc)
         return None
-    if cfg.distortion == "always":
-        return cams2, info, graph, values, prob
+    if mode == "always":
+        return res + (prob,)
     rest = np.setdiff1d(np.arange(assoc.n_groups), sel)
     if rest.size == 0:
         return None
     held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     e1 = _heldout_error(assoc, held, cameras, joints)
-    e2 = _heldout_error(assoc, held, cams2, joints)
+    e2 = _heldout_error(assoc, held, res[0], joints)
     gain = 1 - e2 / e1 if e1 > 0 else 0.0
-    log.info("distortion pass: held-out median reprojection %.2f -> %.2f px (gain %.0f %%)",
+    log.info("%s pass: held-out median reprojection %.3f -> %.3f px (gain %.1f %%)", model,
              e1, e2, 100 * gain)
-    if gain < cfg.distortion_min_gain:
-        return None
-    return cams2, info, graph, values, prob
+    return res + (prob,) if gain >= min_gain else None
 
 
 def _poses3d(assoc: Association, points: NDArray[np.float64], times: NDArray[np.float64]
@@ -355,6 +359,39 @@ def _report(assoc: Association, cameras: list[Camera], sigmas: list[dict[str, fl
     for q in quality.values():
         log.info("camera %s: %s (%s)", q.camera, q.verdict, q.reason)
     return points, quality
+
+
+def _sync_cost(data: _Data, cameras: list[Camera], cfg: RefineConfig, joints: NDArray[np.int64],
+               height: float) -> tuple[float, Association]:
+    """Median reprojection error of all groups triangulated by all cameras at these clocks."""
+    assoc = associate(_views(data, cameras), cameras, data.times, height=height,
+                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
+                      consistency=cfg.consistency)
+    step = max(1, assoc.n_groups // 2000)
+    _, err = triangulate_groups(assoc.subset(np.arange(0, assoc.n_groups, step)), cameras, joints)
+    e = err[np.isfinite(err)]
+    return (float(np.median(e)) if e.size else np.inf), assoc
+
+
+def _refine_time(data: _Data, cameras: list[Camera], cfg: RefineConfig, joints: NDArray[np.int64],
+                 height: float, rng: np.random.Generator) -> list[Camera]:
+    """Sub-frame offsets, re-associating with the new clocks between updates.
+
+    An update is kept only if it lowers the joint triangulation error of all cameras: the
+    leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
+    """
+    cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
+    for _ in range(cfg.time_iterations):
+        new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
+                             joints, search=cfg.time_search_frames,
+                             step=cfg.time_step_frames, rng=rng)
+        new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
+        log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
+                 "kept" if new_cost < cost else "rejected")
+        if new_cost >= cost:
+            break
+        cameras, cost, assoc = new, new_cost, new_assoc
+    return cameras
 
 
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
@@ -397,7 +434,9 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         assoc = associate(_views(data, cameras), cameras, data.times, height=height,
                           ankle_height=cfg.ankle_height,
                           gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
-                          consistency=cfg.consistency_refined if refined else cfg.consistency)
+                          consistency=cfg.consistency_refined if refined else cfg.consistency,
+                          align_ground=0 if refined else cfg.align_ground,
+                          reference=data.reference)
         if assoc.n_groups < 5:
             raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
                                    " at the same time: check the time offsets and overlap")
@@ -415,17 +454,19 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             # rescale to the height prior so the bone terms never pin a scale it disagrees with
             k = _height_scale(pts, tuple(cfg.joints), cfg, height)
             targets = {tr: v * k for tr, v in targets.items()}
-        if cfg.refine_time and r < cfg.n_rounds - 1:
-            cameras = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
-                                     joints, search=cfg.time_search_frames,
-                                     step=cfg.time_step_frames, rng=rng)
+        if cfg.refine_time:  # after the last round too: the final association uses it
+            cameras = _refine_time(data, cameras, cfg, joints, height, rng)
     distortion = False
-    if cfg.distortion != "never":
-        res = _distortion_pass(assoc, sel, cameras, cfg, kw | {"targets": targets}, rng)
+    passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
+    for model, mode, gain in passes:
+        if mode == "never":
+            continue
+        res = _intrinsics_pass(assoc, sel, cameras, cfg, kw | {"targets": targets}, rng,
+                               model=model, mode=mode, min_gain=gain)
         if res is not None:
-            cameras, info, graph, values, prob = res
+            cameras, _, info, graph, values, prob = res
             solves.append(info)
-            distortion = True
+            distortion = distortion or model == "ds2"
     sigmas = marginal_sigmas(graph, values, prob)
     final = associate(_views(data, cameras), cameras, data.times, height=height,
                       ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,

@@ -85,6 +85,10 @@ class RefineConfig(BaseModel):
     gate_m: float = Field(
         1.5, gt=0, description="Ground distance gate (m) of the first association, sized for "
         "the errors stages II-IV leave (~3 deg, ~0.3 m).")
+    align_ground: int = Field(
+        2, ge=0, description="First round: rounds of per-camera affine warps of the ground "
+        "positions onto the other cameras' before re-clustering (absorbs the metres of ground "
+        "error a few degrees of tilt cause at shallow viewing angles).")
     gate_refined_m: float = Field(0.6, gt=0, description="Gate after the first solve (m).")
     consistency: float = Field(
         0.3, gt=0, description="First-round gate of a view's median reprojection error after "
@@ -98,19 +102,26 @@ class RefineConfig(BaseModel):
     refine_time: bool = Field(
         True, description="Refine each camera's time offset to sub-frame accuracy between "
         "rounds by interpolating its 2D tracks (the rate from stage III is kept).")
+    time_iterations: int = Field(
+        2, ge=1, description="Offset updates (each after a re-association) after each round.")
     time_search_frames: float = Field(
         1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
     time_step_frames: float = Field(0.05, gt=0, description="Grid step of that search.")
 
     # -- intrinsics --------------------------------------------------------------------------------
     distortion: Literal["auto", "never", "always"] = Field(
-        "auto", description="Final pass with principal point and k1, k2, p1, p2 free (Cal3DS2): "
+        "auto", description="Final pass with fx, fy, principal point, k1, k2, p1, p2 (Cal3DS2): "
         "'auto' keeps it only if it lowers the held-out reprojection error measurably.")
     distortion_min_gain: float = Field(
         0.05, ge=0, description="Relative drop of the held-out median reprojection error that "
         "'auto' requires to keep the distortion model.")
-    principal_point_sigma_px: float = Field(
-        15.0, gt=0, description="Prior sd of the principal point around the image centre.")
+    principal_point: Literal["auto", "never", "always"] = Field(
+        "auto", description="Pass with the principal point free (Cal3_S2, fx = fy): 'auto' "
+        "keeps it unless it raises the held-out reprojection error. A principal point 2 % off "
+        "the centre tilts a wide-angle camera by about a degree if it is held fixed.")
+    principal_point_sigma: float = Field(
+        0.02, gt=0, description="Prior sd of the principal point around the image centre, as a "
+        "fraction of the image width.")
     distortion_sigma: float = Field(0.3, gt=0, description="Prior sd of k1 and k2.")
     tangential_sigma: float = Field(0.01, gt=0, description="Prior sd of p1 and p2.")
 

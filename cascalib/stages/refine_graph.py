@@ -73,8 +73,9 @@ class GraphProblem:
         Target length of each bone of each group (m), NaN for none.
     reference : int
         Index of the reference camera (gauge).
-    model : {"f", "ds2"}
-        Calibration model: ``Cal3f`` (one focal) or ``Cal3DS2`` (with distortion).
+    model : {"f", "s2", "ds2"}
+        Calibration model: ``Cal3f`` (one focal, principal point fixed), ``Cal3_S2`` (focal and
+        principal point, fx = fy by a tight prior) or ``Cal3DS2`` (also k1, k2, p1, p2).
     height : float
         Height prior (m).
     n_persons : int
@@ -94,7 +95,7 @@ class GraphProblem:
     bones: NDArray[np.int64]
     bone_lengths: NDArray[np.float64]
     reference: int
-    model: Literal["f", "ds2"]
+    model: Literal["f", "s2", "ds2"]
     height: float
     n_persons: int
     sigma_px: float
@@ -119,8 +120,8 @@ def _robust(kernel: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseMo
 def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                       cfg: RefineConfig) -> int:
     """Reprojection factors; the noise models are shared per confidence level (1/20 steps)."""
-    factor = (gtsam.GeneralSFMFactor2Cal3f if prob.model == "f"
-              else gtsam.GeneralSFMFactor2Cal3DS2)
+    factor = {"f": gtsam.GeneralSFMFactor2Cal3f, "s2": gtsam.GeneralSFMFactor2Cal3_S2,
+              "ds2": gtsam.GeneralSFMFactor2Cal3DS2}[prob.model]
     keys = prob.point_keys()
     conf = prob.obs[..., 2]
     ok = (keys[:, None, :] >= 0) & np.isfinite(prob.obs[..., 0]) & (conf >= cfg.min_confidence)
@@ -188,9 +189,11 @@ def _gauge_noise(cam: Camera, cfg: RefineConfig) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
-def _calibration(cam: Camera, model: str) -> gtsam.Cal3f | gtsam.Cal3DS2:
+def _calibration(cam: Camera, model: str) -> gtsam.Cal3f | gtsam.Cal3_S2 | gtsam.Cal3DS2:
     if model == "f":
         return gtsam.Cal3f(cam.focal, cam.K[0, 2], cam.K[1, 2])
+    if model == "s2":
+        return gtsam.Cal3_S2(cam.fx, cam.fy, cam.K[0, 1], cam.K[0, 2], cam.K[1, 2])
     k1, k2, p1, p2, _ = cam.dist
     return gtsam.Cal3DS2(cam.fx, cam.fy, cam.K[0, 1], cam.K[0, 2], cam.K[1, 2], k1, k2, p1, p2)
 
@@ -204,10 +207,20 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                                 gtsam.noiseModel.Isotropic.Sigma(1, 0.3 * cam.focal))
             continue
         w, h = cam.image_size
-        centred = cam.with_(K=np.array([[cam.fx, 0, (w - 1) / 2], [0, cam.fy, (h - 1) / 2],
+        centred = cam.with_(K=np.array([[cam.focal, 0, (w - 1) / 2], [0, cam.focal, (h - 1) / 2],
                                         [0, 0, 1]]), dist=np.zeros(5))
-        sig = np.array([0.3 * cam.focal, 0.3 * cam.focal, 1e-3, cfg.principal_point_sigma_px,
-                        cfg.principal_point_sigma_px, cfg.distortion_sigma, cfg.distortion_sigma,
+        pp_sigma = cfg.principal_point_sigma * w
+        if prob.model == "s2":
+            # fx = fy up to 0.01 %, their mean loose, no skew: a Gaussian with correlated fx, fy
+            loose, tight = (0.3 * cam.focal) ** 2, (1e-4 * cam.focal) ** 2
+            cov = np.diag([0.0, 0.0, 1e-6, pp_sigma**2, pp_sigma**2])
+            cov[:2, :2] = 0.5 * (loose + tight) * np.eye(2) + 0.5 * (loose - tight) * (
+                np.ones((2, 2)) - np.eye(2))
+            graph.add(gtsam.PriorFactorCal3_S2(K(c), _calibration(centred, "s2"),
+                                               gtsam.noiseModel.Gaussian.Covariance(cov)))
+            continue
+        sig = np.array([0.3 * cam.focal, 0.3 * cam.focal, 1e-3, pp_sigma, pp_sigma,
+                        cfg.distortion_sigma, cfg.distortion_sigma,
                         cfg.tangential_sigma, cfg.tangential_sigma])
         graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(centred, "ds2"),
                                            gtsam.noiseModel.Diagonal.Sigmas(sig)))
@@ -310,6 +323,9 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
             cal = values.atCal3f(K(c))
             Kmat = np.array([[cal.fx(), 0, cal.px()], [0, cal.fx(), cal.py()], [0, 0, 1.0]])
             dist = np.zeros(5)
+        elif prob.model == "s2":
+            Kmat = values.atCal3_S2(K(c)).K()
+            dist = np.zeros(5)
         else:
             cal = values.atCal3DS2(K(c))
             Kmat = cal.K()
@@ -334,13 +350,13 @@ def _shape_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, prob: 
     shape.push_back(graph)
     ref = prob.reference
     pose_ref = values.atPose3(X(ref))
-    shape.add(gtsam.PriorFactorPose3(X(ref), pose_ref, gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    shape.add(gtsam.PriorFactorPose3(X(ref), pose_ref, gtsam.noiseModel.Isotropic.Sigma(6, 1e-5)))
     others = [c for c in range(len(prob.cameras)) if c != ref]
     far = max(others, key=lambda c: np.linalg.norm(values.atPose3(X(c)).translation()
                                                    - pose_ref.translation()))
     dist = float(np.linalg.norm(values.atPose3(X(far)).translation() - pose_ref.translation()))
     shape.add(gtsam.RangeFactorPose3(X(ref), X(far), dist, gtsam.noiseModel.Isotropic.Sigma(
-        1, 1e-6)))
+        1, 1e-5)))
     return shape
 
 
@@ -360,17 +376,22 @@ def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pro
         return [dict(nan) for _ in prob.cameras]
     out = []
     for c in range(len(prob.cameras)):
-        cov = marg.marginalCovariance(X(c))
+        try:
+            cov = marg.marginalCovariance(X(c))
+            kc = marg.marginalCovariance(K(c))
+        except RuntimeError as exc:  # nearly indeterminate: report as unknown, not a crash
+            log.warning("marginal covariance of camera %d unavailable: %s", c, exc)
+            out.append(dict(nan))
+            continue
         R_wc = values.atPose3(X(c)).rotation().matrix()
         rot = R_wc @ cov[:3, :3] @ R_wc.T
         pos = R_wc @ cov[3:, 3:] @ R_wc.T
-        kc = marg.marginalCovariance(K(c))
         f_var = kc[0, 0] if prob.model == "f" else 0.5 * (kc[0, 0] + kc[1, 1])
         out.append(dict(focal=float(np.sqrt(f_var)),
                         rotation=float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(rot)[-1], 0)))),
                         position=float(np.sqrt(max(np.linalg.eigvalsh(pos)[-1], 0)))))
     ref = prob.reference
     for key in ("rotation", "position"):
-        vals = [o[key] for c, o in enumerate(out) if c != ref]
+        vals = [o[key] for c, o in enumerate(out) if c != ref and np.isfinite(o[key])]
         out[ref][key] = float(np.min(vals)) if vals else np.nan
     return out

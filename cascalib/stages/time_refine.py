@@ -139,8 +139,10 @@ def _decouple(current: NDArray[np.float64], measured: NDArray[np.float64],
         err = np.linalg.solve(A, current[idx] - measured[idx])
     except np.linalg.LinAlgError:
         err = current[idx] - measured[idx]
+    # the weights are only a model of the coupling: damp, and never step past the search window
+    step = np.clip(-0.7 * err, -0.5, 0.5)
     out = current.copy()
-    out[idx] = current[idx] - err
+    out[idx] = current[idx] + step
     return out
 
 

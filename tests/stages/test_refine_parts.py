@@ -1,0 +1,176 @@
+"""Stage V parts: triangulation, interpolation, association, frame selection, time, quality."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from refine_scene import make_scene, perturb
+
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.association import (
+    Association,
+    associate,
+    frame_links,
+    interpolate_views,
+)
+from cascalib.stages.frame_selection import select_groups
+from cascalib.stages.quality import assess_camera, unit_weight_sigma
+from cascalib.stages.refine import _prepare, _views, refine
+from cascalib.stages.refine_config import RefineConfig
+from cascalib.stages.time_refine import refine_offsets
+from cascalib.stages.triangulation import triangulate
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene(n_frames=60, n_persons=3, noise_px=0.0, offsets=(0, 0.3, -0.4, 0.2))
+
+
+def test_triangulation_exact_and_robust(scene):
+    cams = list(scene.truth)
+    X = scene.joints[:5].reshape(-1, 3)
+    uv = np.stack([c.project(X) for c in cams])
+    Xt, err = triangulate(cams, uv)
+    np.testing.assert_allclose(Xt, X, atol=1e-6)
+    assert np.nanmax(err) < 1e-4
+    bad = uv.copy()
+    bad[2, ::3] += 80.0  # one view of every third point is an outlier
+    Xr, err = triangulate(cams, bad, huber_px=2.0, n_iter=8)
+    assert np.median(np.linalg.norm(Xr - X, axis=1)) < 0.01
+    assert np.nanmedian(err[2, ::3]) > 40  # the outlier keeps its large residual
+    one = uv.copy()
+    one[1:] = np.nan
+    assert np.isnan(triangulate(cams, one)[0]).all()
+
+
+def test_interpolation_follows_the_time_convention(scene):
+    data = _prepare(scene.tracks, scene.truth)
+    views = _views(data, list(scene.truth))
+    for c, cam in enumerate(scene.truth):
+        proj = cam.project(scene.joints[5:50])  # true joints at reference frames 5..49
+        got = views[c][5:50, :, :, :2]
+        d = np.linalg.norm(proj[:, :, None] - got[:, None], axis=-1)  # (T, P, P', 26)
+        best = np.nanmedian(d, axis=-1).min(-1)
+        # linear interpolation of a walk sampled at 25 fps: well under a pixel
+        assert np.nanmedian(best) < 0.5, cam.name
+
+
+def test_frame_links_follow_persons():
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0, 1000, (3, 26, 2))
+    kp = np.concatenate([np.stack([base + 2.0 * f for f in range(4)]),
+                         np.ones((4, 3, 26, 1))], -1)
+    perm = np.array([[0, 1, 2], [2, 0, 1], [1, 2, 0], [0, 2, 1]])
+    kp = np.take_along_axis(kp, perm[:, :, None, None], axis=1)
+    links = frame_links(kp)
+    for f in range(3):
+        for p in range(3):
+            assert perm[f + 1][links[f, p]] == perm[f][p]
+    mid = interpolate_views(kp, links, np.array([1.5]))
+    expect = base[perm[1]] + 3.0
+    np.testing.assert_allclose(mid[0, :, :, :2], expect)
+
+
+def test_association_handles_missing_and_extra_persons():
+    scene = make_scene(n_frames=40, n_persons=4, noise_px=1.0, seed=7)
+    tracks = []
+    rng = np.random.default_rng(1)
+    for i, tr in enumerate(scene.tracks):
+        kp = tr.keypoints.copy()
+        if i == 1:
+            kp[:, 0] = np.nan  # one person never detected by camera 1
+        fake = kp[:, :1].copy()
+        fake[..., :2] = rng.uniform(100, 900, fake[..., :2].shape)  # a false positive
+        fake[..., 2] = 0.9
+        tracks.append(tr.with_(keypoints=np.concatenate([kp, fake], 1)))
+    start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02)
+    data = _prepare(tracks, start)
+    assoc = associate(_views(data, list(start)), list(start), data.times, height=1.72,
+                      ankle_height=0.085, gate_m=1.0, consistency=0.3)
+    # every group must be one true person: its triangulation matches one true skeleton
+    counts = np.zeros(len(data.times))
+    for g in range(assoc.n_groups):
+        t = int(assoc.times[g])
+        uv = assoc.obs[g, 0, :, :2]
+        if np.isfinite(uv).sum() < 10:
+            continue
+        proj = scene.truth.cameras[0].project(scene.joints[t])  # (P, 26, 2)
+        d = np.nanmedian(np.linalg.norm(proj - uv[None], axis=-1), axis=-1)
+        assert d.min() < 25, f"group {g} at t={t} is not a true person"
+        counts[t] += 1
+    n_views = np.isfinite(assoc.obs[..., 0]).any(-1).sum(1)
+    assert (n_views >= 2).all()
+    assert np.median(counts) >= 3  # persons visible in camera 0 are found
+
+
+def test_frame_selection_spreads_over_time():
+    rng = np.random.default_rng(0)
+    n = 1000
+    obs = np.full((n, 2, 26, 3), np.nan)
+    obs[..., :2] = rng.uniform(0, 1000, (n, 2, 26, 2))
+    obs[..., 2] = 0.9
+    obs[:800, :, :, 2] = 1.0  # the first 800 groups are a little more confident
+    times = np.concatenate([np.arange(800) * 0.1, 80 + np.arange(200)])
+    assoc = Association(times, obs, np.zeros(n, dtype=np.int64), rng.uniform(0, 5, (n, 2)))
+    sel = select_groups(assoc, [(1000, 1000)] * 2, 100, np.arange(26), n_time_bins=20)
+    assert len(sel) == 100 and len(np.unique(sel)) == 100
+    late = (times[sel] >= 80).mean()
+    assert 0.3 < late < 0.7  # half the time span, half the picks (by quality alone: none)
+
+
+def test_time_offsets_recovered(scene):
+    noisy = make_scene(n_frames=60, n_persons=3, noise_px=0.5, offsets=(0, 0.3, -0.4, 0.2),
+                       seed=2)
+    cams = [c.with_(time_offset=c.time_offset + d) for c, d in
+            zip(noisy.truth, (0, -0.5, 0.5, 0.4), strict=True)]
+    data = _prepare(noisy.tracks, noisy.truth)
+    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
+    for _ in range(3):
+        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
+                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
+        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+    err = [abs(c.time_offset - t.time_offset) for c, t in zip(cams, noisy.truth, strict=True)]
+    assert max(err) < 0.1
+
+
+def test_quality_verdicts():
+    cfg = RefineConfig()
+    cam = make_scene(n_frames=2, n_persons=1).truth.cameras[0]
+    good = {"focal": 2.0, "rotation": 0.02, "position": 0.01}
+    rng = np.random.default_rng(0)
+    e = np.abs(rng.normal(0, 1.5, 1000))
+    q = assess_camera(cam, e, good, 1.0, cfg)
+    assert q.verdict == "accepted" and q.inlier_rate == 1.0
+    q = assess_camera(cam, e + 6.0, good, 1.0, cfg)
+    assert q.verdict == "suspicious" and "median reprojection" in q.reason
+    q = assess_camera(cam, np.r_[e, np.full(3000, 50.0)], good, 1.0, cfg)
+    assert q.verdict == "failed" and "inlier rate" in q.reason
+    q = assess_camera(cam, e[:10], good, 1.0, cfg)
+    assert q.verdict == "failed" and "observations" in q.reason
+    q = assess_camera(cam, e, good, 30.0, cfg)
+    assert q.verdict == "suspicious" and "rotation uncertainty" in q.reason
+    sig = np.full(100000, 2.0)
+    errs = np.linalg.norm(rng.normal(0, 3.0, (100000, 2)), axis=1)
+    assert unit_weight_sigma(errs, sig) == pytest.approx(1.5, rel=0.02)
+
+
+def test_refine_end_to_end_small():
+    scene = make_scene(n_frames=70, n_persons=3, noise_px=0.5, offsets=(0, 0.3, -0.4, 0.2),
+                       seed=11)
+    start = perturb(scene.truth, rot_deg=3.0, pos_m=0.3, focal_rel=0.05, offset_frames=0.5)
+    res = refine(scene.tracks, start, RefineConfig(max_groups=80, distortion="never",
+                                                     principal_point="never"),
+                 height=float(scene.heights.mean()), rng=0)
+    est, truth = res.calibration.cameras, scene.truth.cameras
+    rel = [np.degrees(np.arccos(np.clip((np.trace((est[i].R @ est[j].R.T)
+                                                  @ (truth[i].R @ truth[j].R.T).T) - 1) / 2,
+                                        -1, 1)))
+           for i in range(4) for j in range(i + 1, 4)]
+    assert np.median(rel) < 0.3 and max(rel) < 1.0
+    focal = [abs(e.focal / t.focal - 1) for e, t in zip(est, truth, strict=True)]
+    assert max(focal) < 0.02
+    off = [abs(e.time_offset - t.time_offset) for e, t in zip(est, truth, strict=True)]
+    assert max(off) < 0.15
+    assert all(q.verdict == "accepted" for q in res.quality.values())
+    assert res.poses3d.shape[1:] == (3, 26, 3)
+    assert set(res.calibration.quality) == {c.name for c in est}
