@@ -327,7 +327,8 @@ class SyncFit:
 
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                margin: float = 6.0, rate_prior_sd: float = 2e-3, max_samples: int = 6000,
+                margin: float = 6.0, rate_prior_sd: float = 2e-3,
+                rate_significance: float = 2.0, max_samples: int = 6000,
                 noise_a: tuple[NDArray[np.float64], float] | None = None,
                 noise_b: tuple[NDArray[np.float64], float] | None = None,
                 rng: np.random.Generator | None = None) -> SyncFit:
@@ -335,7 +336,8 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
 
     Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
     ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
-    ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.).
+    ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.). A rate
+    that differs from 1 by less than ``rate_significance`` s.d. is set to 1 and the rest refit.
 
     ``noise_a`` / ``noise_b``: ``(centre_xy, k)`` of each camera's ground noise model
     ``sigma(x) = sigma + k |x - centre|^2`` (metres): a pixel of error moves a ground point by
@@ -398,28 +400,46 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
         return np.r_[(raw(p) / w_sd[:, None]).ravel(), p[1] * 1e-3 / rate_prior_sd]
 
     ls = np.log(scale_range) + 1e-9
-    lo = np.r_[offset - 6.0, -5.0 if estimate_rate else -1e-9, -np.inf, -np.inf, -np.inf, -ls]
-    hi = np.r_[offset + 6.0, 5.0 if estimate_rate else 1e-9, np.inf, np.inf, np.inf, ls]
-    p0 = np.clip(p0, lo + 1e-12, hi - 1e-12)
-    sol = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=2.0,
-                        diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5], x_scale="jac")
-    rn = np.linalg.norm(sol.fun[:-1].reshape(-1, 2), axis=1)  # in noise s.d.
-    inl = rn < 3 * max(1.0, 1.5 * np.median(rn))
+
+    def solve(rate_free: bool, p_init: NDArray[np.float64]) -> tuple:
+        r_lim = 5.0 if rate_free else 1e-9
+        lo = np.r_[offset - 6.0, -r_lim, -np.inf, -np.inf, -np.inf, -ls]
+        hi = np.r_[offset + 6.0, r_lim, np.inf, np.inf, np.inf, ls]
+        sol = least_squares(resid, np.clip(p_init, lo + 1e-12, hi - 1e-12), bounds=(lo, hi),
+                            loss="soft_l1", f_scale=2.0, x_scale="jac",
+                            diff_step=np.r_[1e-3, 1e-3, 1e-5, 1e-5, 1e-5, 1e-5])
+        rn = np.linalg.norm(sol.fun[:-1].reshape(-1, 2), axis=1)  # in noise s.d.
+        inl = rn < 3 * max(1.0, 1.5 * np.median(rn))
+        chi = float(np.sqrt(np.mean(rn[inl] ** 2) / 2)) if inl.any() else np.inf
+        try:
+            J = sol.jac[np.r_[np.repeat(inl, 2), True]]
+            if not rate_free:
+                J = J.copy()
+                J[:, 1] = resid_rate_column(sol.x)[np.r_[np.repeat(inl, 2), True]]
+            # smoothed samples are correlated over ~2 sqrt(pi) s.d.: inflate the covariance
+            cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, 3.5 * margin / 3.0)
+        except np.linalg.LinAlgError:
+            cov = np.full((6, 6), np.inf)
+        return sol, inl, cov
+
+    def resid_rate_column(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """d resid / d p[1] by central differences (the bounded fit has none for it)."""
+        h = 1e-3
+        return (resid(p + np.r_[0, h, 0, 0, 0, 0]) - resid(p - np.r_[0, h, 0, 0, 0, 0])) / (2 * h)
+
+    sol, inl, cov = solve(estimate_rate, p0)
+    rate_sd = float(np.sqrt(max(cov[1, 1], 0.0)) * 1e-3)
+    if estimate_rate and abs(sol.x[1] * 1e-3) < rate_significance * rate_sd:
+        # not measurably different from the prior: a fitted rate would only add its noise
+        sol, inl, cov = solve(False, np.r_[sol.x[0], 0.0, sol.x[2:]])
     d = np.linalg.norm(raw(sol.x), axis=1)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else np.inf
-    chi = float(np.sqrt(np.mean(rn[inl] ** 2) / 2)) if inl.any() else np.inf
-    try:
-        J = sol.jac[np.r_[np.repeat(inl, 2), True]]
-        # smoothed samples are correlated over ~2 sqrt(pi) s.d.: inflate the covariance
-        cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, 3.5 * margin / 3.0)
-    except np.linalg.LinAlgError:
-        cov = np.full((6, 6), np.inf)
     p = sol.x
     rate = 1.0 + p[1] * 1e-3
     offset_at_zero = p[0] + u0 - rate * u0  # u_a = rate * u_b + offset_at_zero
     g = np.array([1.0, -u0 * 1e-3])
     off_sd = float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
-    rate_sd = float(np.sqrt(max(cov[1, 1], 0.0)) * 1e-3)
+    rate_sd = float(np.sqrt(max(cov[1, 1], 0.0)) * 1e-3)  # the measurement's s.d.
     tr = Similarity2D(float(p[2]), p[3:5].copy(), float(np.exp(p[5])))
     pb = predict(p)
     sel = np.flatnonzero(inl)
