@@ -275,7 +275,7 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
     offsets = _offsets(obs, best, _max_height_rel(cfg))
     inliers, rel, px = _classify(model, obs, offsets, True, cfg)
     z = float(norm.ppf(0.5 + cfg.confidence_level / 2))
-    sd = best.log_f_sd if np.isfinite(best.log_f_sd) else np.inf
+    sd = best.log_f_sd if np.isfinite(best.log_f_sd) and best.log_f_sd < 5 else np.inf
     with np.errstate(over="ignore"):
         lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
     pitch = float(np.degrees(np.arcsin(np.clip(-model.n[2], -1, 1))))

@@ -254,7 +254,8 @@ def _robust_sigma(r: F64) -> float:
     return float(1.4826 * np.median(np.abs(r))) if r.size else 1.0
 
 
-def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int) -> F64:
+def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int,
+                per_cluster: float = 1.0) -> F64:
     """Classic or cluster-sandwich covariance, whichever gives ``log f`` the larger variance."""
     H = J.T @ J
     # a (near-)singular normal matrix means an unobservable parameter: infinite variance, not
@@ -269,7 +270,9 @@ def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int) -> F
     scores = J * r[:, None]
     uniq, inv = np.unique(clusters, return_inverse=True)
     if len(uniq) < 5:
-        return classic
+        # too few clusters for the sandwich: count each cluster as one observation (frames of
+        # a person at one spot repeat the same information)
+        return classic * max(per_cluster, 1.0)
     S = np.zeros((len(uniq), J.shape[1]))
     np.add.at(S, inv, scores)
     sandwich = Hinv @ (S.T @ S) @ Hinv * len(uniq) / (len(uniq) - 1)
@@ -346,7 +349,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     det, _ = prob.row_detections()
     clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids))]
     r_all = np.r_[r_px, res.fun[len(r_px):]]
-    cov = _covariance(J, r_all, clus, len(res.x))
+    n_clusters = len(np.unique(clusters)) if len(clusters) else 1
+    cov = _covariance(J, r_all, clus, len(res.x), per_cluster=obs.n / n_clusters)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     c_sd = np.abs(sd[4] * image_diag * prob.c_dir) if fit_principal_point else np.zeros(2)
     b = prob.n_base
