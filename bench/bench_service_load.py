@@ -115,13 +115,15 @@ def main() -> int:
     p.add_argument("--jobs", type=int, default=100)
     p.add_argument("--clients", type=int, default=20)
     p.add_argument("--backend", choices=["sqlite", "postgres", "celery"], default="sqlite")
-    p.add_argument("--workers", type=int, default=2, help="embedded pool size")
+    p.add_argument("--workers", type=int, default=2,
+                   help="embedded pool size, or Celery worker concurrency")
     p.add_argument("--timeout", type=float, default=600)
     args = p.parse_args()
     assert args.clients <= len(TOKENS)
     files = [(f"cam{i}.zip", camera_zip(i)) for i in range(2)]
     with tempfile.TemporaryDirectory() as tmp:
-        dep, pg = build_deployment(args.backend, Path(tmp), CASCALIB_WORKERS=str(args.workers),
+        dep, pg = build_deployment(args.backend, Path(tmp), concurrency=args.workers,
+                                   CASCALIB_WORKERS=str(args.workers),
                                    CASCALIB_HEARTBEAT_SECONDS="2",
                                    CASCALIB_STALE_AFTER_SECONDS="60")
         try:
@@ -139,8 +141,8 @@ def main() -> int:
             elapsed = time.perf_counter() - t0
             print(f"backend {args.backend}, {args.clients} clients, {args.jobs} jobs, "
                   f"{args.workers} embedded workers" if args.backend != "celery"
-                  else f"backend celery (1 worker process), {args.clients} clients, "
-                  f"{args.jobs} jobs")
+                  else f"backend celery (1 worker, concurrency {args.workers}), "
+                  f"{args.clients} clients, {args.jobs} jobs")
             return report(rec, out, dep.url, elapsed, args.jobs)
         finally:
             dep.stop()

@@ -2,6 +2,7 @@
 
 Start a worker with ``celery -A service.worker worker`` (same ``CASCALIB_*`` environment as
 the API, with CASCALIB_BROKER_URL and a shared CASCALIB_DATABASE_URL / CASCALIB_DATA_DIR).
+Each task runs its job in a child process (``job_process.py``) that it supervises.
 The broker only carries job ids; the job itself lives in the store, so a lost or duplicated
 message is harmless: the API re-sends queued jobs, and only one worker can claim a job.
 """
@@ -10,8 +11,9 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 from datetime import timedelta
@@ -54,13 +56,6 @@ def _worker_store(settings: Settings) -> Store:
         return _store
 
 
-def _stop_this_process() -> None:
-    """The job was cancelled: end this pool process now. Celery starts a fresh one, and the
-    message (acks_late + reject_on_worker_lost) goes back to the queue, where the next claim of
-    the job finds it cancelled and does nothing."""
-    os.kill(os.getpid(), signal.SIGKILL)
-
-
 def create_celery(settings: Settings) -> Celery:
     """The Celery application (no connection is made until it is used)."""
     celery = Celery("cascalib", broker=settings.broker_url or "redis://127.0.0.1:6379/0")
@@ -76,19 +71,54 @@ def create_celery(settings: Settings) -> Celery:
 
     @celery.task(name=TASK_NAME)  # type: ignore[untyped-decorator]
     def run_job_task(job_id: str) -> str | None:
-        from service.inputs import zip_limits
-        from service.worker.runner import execute_claimed
-
         store = _worker_store(settings)
         worker = f"celery:{socket.gethostname()}:{os.getpid()}"
         with store.session() as session:
             attempt = st.claim_job(session, job_id=job_id, worker=worker)
         if attempt is None:
             return None  # duplicate message, or the job was cancelled meanwhile
-        return execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
-                               limits=zip_limits(settings), on_lost=_stop_this_process)
+        new = supervise(job_id, attempt, store, settings)
+        if new == st.QUEUED:
+            run_job_task.apply_async(args=[job_id], queue=QUEUE)
+        return new
 
     return celery
+
+
+def supervise(job_id: str, attempt: int, store: Store, settings: Settings) -> str | None:
+    """Run a claimed job in a child process, heartbeat for it, stop it when cancelled.
+
+    Returns the job's state when the child died without recording an end (re-queued or
+    failed), else None.
+    """
+    proc = subprocess.Popen([sys.executable, "-m", "service.worker.job_process", job_id,
+                             str(attempt)])
+    try:
+        while True:
+            try:
+                code = proc.wait(timeout=settings.heartbeat_seconds)
+                break
+            except subprocess.TimeoutExpired:
+                with store.session() as session:
+                    ours = st.update_progress(session, job_id=job_id, attempt=attempt,
+                                              stage=None, progress=None)
+                if not ours:  # cancelled, or re-queued after a missed heartbeat
+                    log.info("job %s is no longer this worker's: stopping it", job_id)
+                    proc.kill()
+                    proc.wait()
+                    return None
+    except BaseException:
+        proc.kill()  # the worker is shutting down: the job goes back to the queue
+        proc.wait()
+        with store.session() as session:
+            st.release_job(session, job_id=job_id, attempt=attempt)
+        raise
+    if code == 0:
+        return None
+    with store.session() as session:
+        return st.requeue_or_fail(session, job_id=job_id, attempt=attempt,
+                                  reason=f"the job process died (exit code {code})",
+                                  max_attempts=settings.max_attempts)
 
 
 class CeleryDispatcher:

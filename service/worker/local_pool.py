@@ -41,7 +41,7 @@ class _Running:
     attempt: int
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Linux: have the kernel kill this process when the server dies (no orphan keeps running
     a job that the restarted server has already re-queued)."""
     try:
@@ -59,7 +59,7 @@ def _child_main(job_id: str, attempt: int, settings_values: dict[str, Any]) -> N
     from service.inputs import zip_limits
     from service.worker.runner import execute_claimed
 
-    _die_with_parent()
+    die_with_parent()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     settings = Settings(**settings_values)
     store = Store(settings.sqlalchemy_url, settings.data_dir)

@@ -8,6 +8,7 @@ throttled progress writes, cancellation, and the final state with a reason. The 
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 import tempfile
@@ -74,10 +75,38 @@ def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
     return tracks
 
 
+#: Where each extra calibration format goes (the names ``CalibrationResult.save`` uses).
+_EXPORT_PATHS = {"toml": "calibration.toml", "opencv": "calibration_opencv.yml",
+                 "colmap": "colmap", "easymocap": "easymocap"}
+EXPORT_ERRORS = "export_errors.json"
+
+
+def _export(result: Any, tmp: Path) -> dict[str, Path]:
+    """The native JSON, poses and report, then each other format on its own: a format that
+    cannot hold these cameras (e.g. COLMAP and a skewed K) is reported, not fatal."""
+    from cascalib.formats import save_calibration
+
+    saved: dict[str, Path] = dict(result.save(tmp, formats=("json",)))
+    errors: dict[str, str] = {}
+    for fmt in RESULT_FORMATS:
+        if fmt == "json":
+            continue
+        try:
+            paths = save_calibration(result.calibration, tmp / _EXPORT_PATHS[fmt], fmt)
+            saved[f"calibration:{fmt}"] = Path(paths[0])
+        except CascalibError as exc:
+            log.warning("export to %s failed: %s", fmt, exc)
+            errors[fmt] = str(exc)
+    if errors:
+        (tmp / EXPORT_ERRORS).write_text(json.dumps(errors, indent=1))
+        saved["export_errors"] = tmp / EXPORT_ERRORS
+    return saved
+
+
 def _save_outputs(result: Any, job_dir: Path) -> list[StoredFile]:
     tmp = job_dir / "outputs.partial"
     shutil.rmtree(tmp, ignore_errors=True)
-    saved = result.save(tmp, formats=RESULT_FORMATS)
+    saved = _export(result, tmp)
     # Roles are the library's names for what it wrote ("calibration:json", "report", ...);
     # files it did not name (the rest of a COLMAP folder, report plots) get "file:<path>".
     roles = {Path(p).resolve().relative_to(tmp.resolve()): str(role)

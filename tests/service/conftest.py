@@ -13,7 +13,8 @@ from service_helpers import Deployment, build_deployment, next_token
 def deployment(request: pytest.FixtureRequest,
                tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
     """A running service on each back-end (shared by the tests of a session)."""
-    dep, pg = build_deployment(request.param, tmp_path_factory.mktemp(request.param))
+    dep, pg = build_deployment(request.param, tmp_path_factory.mktemp(request.param),
+                               concurrency=2)
     yield dep
     dep.stop()
     if pg:

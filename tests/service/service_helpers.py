@@ -162,9 +162,9 @@ class Deployment:
             time.sleep(0.2)
         raise RuntimeError(f"server not ready after {timeout} s:\n{self.server.tail()}")
 
-    def start_worker(self) -> None:
+    def start_worker(self, concurrency: int = 1) -> None:
         args = [sys.executable, "-m", "celery", "-A", "service.worker", "worker",
-                "--concurrency", "1", "--loglevel", "INFO", "-Q", "cascalib",
+                "--concurrency", str(concurrency), "--loglevel", "INFO", "-Q", "cascalib",
                 "--hostname", f"w{uuid.uuid4().hex[:6]}@%h", "--without-gossip",
                 "--without-mingle", "--without-heartbeat"]
         self.workers.append(spawn(args, self.env, self.tmp / f"worker-{len(self.workers)}.log"))
@@ -201,7 +201,8 @@ def make_env(data_dir: Path, **extra: str) -> dict[str, str]:
     return env
 
 
-def build_deployment(kind: str, tmp: Path, **extra: str) -> tuple[Deployment, Postgres | None]:
+def build_deployment(kind: str, tmp: Path, concurrency: int = 1,
+                     **extra: str) -> tuple[Deployment, Postgres | None]:
     """Start a deployment of ``kind`` (sqlite | postgres | celery); skip if impossible."""
     pg = None
     if kind in ("postgres", "celery"):
@@ -222,7 +223,7 @@ def build_deployment(kind: str, tmp: Path, **extra: str) -> tuple[Deployment, Po
     try:
         dep.start_server()
         if kind == "celery":
-            dep.start_worker()
+            dep.start_worker(concurrency)
     except BaseException:
         dep.stop()
         if pg:

@@ -279,12 +279,17 @@ def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> 
     (tmp_path / "calibration.json").write_bytes(result.content)
     calib = load_calibration(tmp_path / "calibration.json")
     assert calib.names == [name.rsplit(".", 1)[0] for name, _ in files]
+    exported = 0
     for fmt in ("toml", "opencv", "colmap", "easymocap"):
         r = client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt})
+        if r.status_code == 404:  # the format cannot hold these cameras: the reason is given
+            assert "produced no" in r.json()["detail"] and ": " in r.json()["detail"], r.text
+            continue
         assert r.status_code == 200 and r.content, fmt
-    for fmt in ("colmap", "easymocap"):
-        r = client.get(f"/v1/jobs/{job['id']}/result", params={"format": fmt})
-        assert zipfile.ZipFile(io.BytesIO(r.content)).namelist()
+        exported += 1
+        if fmt in ("colmap", "easymocap"):
+            assert zipfile.ZipFile(io.BytesIO(r.content)).namelist()
+    assert exported >= 2
     report = client.get(f"/v1/jobs/{job['id']}/report")
     assert report.status_code == 200 and "<html" in report.text.lower()
     poses = client.get(f"/v1/jobs/{job['id']}/poses")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 from pathlib import Path as FsPath
 from typing import Annotated, Any, Literal
@@ -118,13 +119,23 @@ def _checked(state: StateDep, job: Job, f: JobFile, what: str) -> FsPath:
     return path
 
 
+def _export_error(state: StateDep, job: Job, roles: tuple[str, ...]) -> str:
+    """Why a calibration format could not be written (from export_errors.json), if known."""
+    note = next((f for f in job.files if f.role == "export_errors"), None)
+    if note is None:
+        return ""
+    errors = json.loads(_checked(state, job, note, "export notes").read_text())
+    reasons = [errors[r.split(":", 1)[1]] for r in roles if r.split(":", 1)[-1] in errors]
+    return f": {reasons[0]}" if reasons else ""
+
+
 def _serve(state: StateDep, job: Job, roles: tuple[str, ...], media_type: str,
            what: str) -> Response:
     """One output file by role; or, for a format written as a folder, a zip of the folder."""
     outputs = _outputs(job, what)
     found = next((f for r in roles for f in outputs if f.role == r), None)
     if found is None:
-        raise ProblemError(404, f"this job produced no {what}")
+        raise ProblemError(404, f"this job produced no {what}{_export_error(state, job, roles)}")
     path = _checked(state, job, found, what)
     folder = FsPath(found.path).parent
     if folder.name in FOLDER_FORMATS:  # colmap/, easymocap/: several files
