@@ -162,10 +162,8 @@ def run_job(job_id: str, store: Store, progress: Progress, *,
 class _Reporter:
     """Progress callback + heartbeat thread, fenced by the attempt number."""
 
-    def __init__(self, store: Store, job_id: str, attempt: int, period: float,
-                 on_lost: Callable[[], None] | None) -> None:
+    def __init__(self, store: Store, job_id: str, attempt: int, period: float) -> None:
         self.store, self.job_id, self.attempt, self.period = store, job_id, attempt, period
-        self.on_lost = on_lost
         self.lost = threading.Event()
         self._stop = threading.Event()
         self._last = 0.0
@@ -176,11 +174,8 @@ class _Reporter:
         with self.store.session() as session:
             ok = st.update_progress(session, job_id=self.job_id, attempt=self.attempt,
                                     stage=stage, progress=fraction)
-        if not ok and not self.lost.is_set():
+        if not ok:
             self.lost.set()
-            if self.on_lost is not None:
-                log.info("job %s was cancelled or re-queued: stopping this worker", self.job_id)
-                self.on_lost()
 
     def _beat(self) -> None:
         while not self._stop.wait(self.period):
@@ -207,17 +202,15 @@ class _Reporter:
 
 
 def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float,
-                    limits: ZipLimits | None = None,
-                    on_lost: Callable[[], None] | None = None) -> str:
+                    limits: ZipLimits | None = None) -> str:
     """Run a job this worker has claimed and record how it ended; returns the final status.
 
-    ``on_lost`` is called (from the heartbeat thread) when the job stops being this attempt's
-    (cancelled, or re-queued after a missed heartbeat) so the back-end can stop the computation
-    at once instead of at the next stage boundary.
+    A cancelled job stops at its next progress report; the back-ends also kill its process at
+    once (it runs in a process of its own in both).
     """
     status, error, outputs = st.FAILED, None, []
     names = _Names(store.job_dir(job_id))
-    with _Reporter(store, job_id, attempt, heartbeat, on_lost) as reporter:
+    with _Reporter(store, job_id, attempt, heartbeat) as reporter:
         try:
             outputs = run_job(job_id, store, reporter, limits=limits, names=names)
             status = st.SUCCEEDED
