@@ -181,6 +181,8 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                       margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref),
                       noise_a=noise[i], noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd,
                       rng=rng)
+    if fit is None:
+        return PairAlignment(i, j, curve, scores, -1, None, 1.0)
     logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
                 fine[i].camera, fine[j].camera, fit.offset, fit.rate,
                 np.degrees(fit.transform.angle), fit.rms, ambiguity)

@@ -325,25 +325,14 @@ class SyncFit:
     rate_sd: float = np.inf
 
 
-def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
-                *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
-                margin: float = 6.0, rate_prior_sd: float = 2e-3,
-                rate_significance: float = 2.0, max_samples: int = 6000,
-                noise_a: tuple[NDArray[np.float64], float] | None = None,
-                noise_b: tuple[NDArray[np.float64], float] | None = None,
-                rng: np.random.Generator | None = None) -> SyncFit:
-    """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
+def _sync_samples(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult,
+                  offset: int, margin: float, max_samples: int, rng: np.random.Generator
+                  ) -> tuple[NDArray[np.float64], ...] | None:
+    """Matched samples of the sub-frame fit and B's interpolation tables.
 
-    Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
-    ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
-    ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.). A rate
-    that differs from 1 by less than ``rate_significance`` s.d. is set to 1 and the rest refit.
-
-    ``noise_a`` / ``noise_b``: ``(centre_xy, k)`` of each camera's ground noise model
-    ``sigma(x) = sigma + k |x - centre|^2`` (metres): a pixel of error moves a ground point by
-    ``d^2 / (f h)`` at distance ``d`` from a camera at height ``h``, so far points weigh less.
+    Returns (u_a (n,), x_a (n, 2), virtual-axis shift of each sample's B tracklet (n,),
+    virtual times (m,), B positions (m, 2)), or None with fewer than 20 samples.
     """
-    rng = np.random.default_rng(rng)
     ua = icp.frames_a.astype(np.float64)
     xa = la.pos[icp.frames_a, icp.lanes_a]
     tid = lb.tid[icp.frames_b, icp.lanes_b]
@@ -354,6 +343,8 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     len_a = np.array([len(a.xy[t]) for t in np.maximum(tida, 0)])
     ok &= (ua >= start_a + margin) & (ua <= start_a + len_a - 1 - margin)
     ua, xa, tid = ua[ok], xa[ok], tid[ok]
+    if ua.size < 20:
+        return None
     # B's tracklets (gaps removed) laid end to end on one virtual time axis, far apart, so one
     # np.interp serves all; samples that could leave their tracklet are dropped
     base, gv, xyv = {}, [], []
@@ -373,9 +364,39 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     hi_t = np.array([b.start[t] + len(b.xy[t]) - 7.0 - margin for t in tid])
     keep = (ub0 >= lo_t) & (ub0 <= hi_t)
     ua, xa, off_t = ua[keep], xa[keep], off_t[keep]
+    if ua.size < 20:
+        return None
     if ua.size > max_samples:
         sel = rng.choice(ua.size, max_samples, replace=False)
         ua, xa, off_t = ua[sel], xa[sel], off_t[sel]
+    return ua, xa, off_t, gv_all, xy_all
+
+
+def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
+                *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
+                margin: float = 6.0, rate_prior_sd: float = 2e-3,
+                rate_significance: float = 2.0, max_samples: int = 6000,
+                noise_a: tuple[NDArray[np.float64], float] | None = None,
+                noise_b: tuple[NDArray[np.float64], float] | None = None,
+                rng: np.random.Generator | None = None) -> SyncFit | None:
+    """Fit sub-frame offset, rate ratio and 2D similarity on the ICP's matched tracklets.
+
+    Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
+    ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
+    ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.). A rate
+    that differs from 1 by less than ``rate_significance`` s.d. is set to 1 and the rest refit.
+
+    ``noise_a`` / ``noise_b``: ``(centre_xy, k)`` of each camera's ground noise model
+    ``sigma(x) = sigma + k |x - centre|^2`` (metres): a pixel of error moves a ground point by
+    ``d^2 / (f h)`` at distance ``d`` from a camera at height ``h``, so far points weigh less.
+
+    Returns None when fewer than 20 matched samples stay clear of the tracklet ends.
+    """
+    rng = np.random.default_rng(rng)
+    samples = _sync_samples(a, b, la, lb, icp, offset, margin, max_samples, rng)
+    if samples is None:
+        return None
+    ua, xa, off_t, gv_all, xy_all = samples
     u0 = float(np.median(ua))  # rate pivots about the middle: offset and rate decorrelate
 
     def predict(p: NDArray[np.float64]) -> NDArray[np.float64]:
