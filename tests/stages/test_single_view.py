@@ -248,3 +248,19 @@ def test_solver_doctests():
 def test_config_rejects_unknown_fields():
     with pytest.raises(ValueError, match="extra"):
         SingleViewConfig(focal_guess=3)
+
+
+def test_plot_writes_png(tmp_path):
+    import matplotlib.image as mpimg
+
+    from cascalib.stages.single_view_plot import plot_single_view
+
+    tracks, _, _ = make_scene(noise=0.5, n_frames=10)
+    res = calibrate_single_view(tracks, rng=0)
+    out = tmp_path / "single_view.png"
+    fig = plot_single_view(res, path=out)
+    img = mpimg.imread(out)
+    assert img.shape[:2] == (450, 800)  # 8 x 4.5 in at 100 dpi for a 16:9 image
+    # green inlier segments and blue grid lines are drawn
+    assert len(fig.axes[0].collections) == 3
+    assert img[..., 1].std() > 0.01
