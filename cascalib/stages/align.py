@@ -180,6 +180,7 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                       estimate_rate=cfg.estimate_rate, scale_range=sr,
                       margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref),
                       noise_a=noise[i], noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd,
+                      corr_frames=0.5 * fps_ref,
                       rng=rng)
     if fit is None:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0)

@@ -375,7 +375,8 @@ def _sync_samples(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResu
 def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult, offset: int,
                 *, sigma: float = 0.1, estimate_rate: bool = True, scale_range: float = 1.0,
                 margin: float = 6.0, rate_prior_sd: float = 2e-3,
-                rate_significance: float = 2.0, max_samples: int = 6000,
+                rate_significance: float = 3.0, corr_frames: float = 15.0,
+                max_samples: int = 6000,
                 noise_a: tuple[NDArray[np.float64], float] | None = None,
                 noise_b: tuple[NDArray[np.float64], float] | None = None,
                 rng: np.random.Generator | None = None) -> SyncFit | None:
@@ -384,7 +385,8 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     Camera A's matched samples stay at their grid times; camera B's tracklet is interpolated at
     ``u_b = (u_a - offset) / rate``. Robust (soft-L1) least squares. Samples within
     ``margin`` grid frames of a tracklet's end are left out (three smoothing s.d.). A rate
-    that differs from 1 by less than ``rate_significance`` s.d. is set to 1 and the rest refit.
+    that differs from 1 by less than ``rate_significance`` s.d. is set to 1 and the rest refit;
+    ``corr_frames`` is the correlation length (grid frames) of the residuals for the s.d.
 
     ``noise_a`` / ``noise_b``: ``(centre_xy, k)`` of each camera's ground noise model
     ``sigma(x) = sigma + k |x - centre|^2`` (metres): a pixel of error moves a ground point by
@@ -437,8 +439,9 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
             if not rate_free:
                 J = J.copy()
                 J[:, 1] = resid_rate_column(sol.x)[np.r_[np.repeat(inl, 2), True]]
-            # smoothed samples are correlated over ~2 sqrt(pi) s.d.: inflate the covariance
-            cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, 3.5 * margin / 3.0)
+            # residuals are correlated over the smoothing and, through the gait, over about
+            # half a second: inflate the covariance by that many samples
+            cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, corr_frames)
         except np.linalg.LinAlgError:
             cov = np.full((6, 6), np.inf)
         return sol, inl, cov
