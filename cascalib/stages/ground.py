@@ -281,6 +281,8 @@ def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None 
     order = np.lexsort((ff, ids[ff, pp]))
     ff, pp = ff[order], pp[order]
     lab = ids[ff, pp]
+    if lab.size == 0:
+        return out
     bounds = np.r_[0, np.flatnonzero(np.diff(lab)) + 1, lab.size]
     for s, e in zip(bounds[:-1], bounds[1:], strict=True):
         f, p = ff[s:e], pp[s:e]

@@ -283,8 +283,12 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     lag_idx = lags % n_fft
     n_off = a.length + b.length - 1  # offset index: (p - lag) + b.length - 1
     hist = np.zeros((n_off + chunk, angle_bins))
-    G = _dense(b, n_fft, chunk + 1)
     chunks = _chunks(a, chunk, min_overlap, min_spread)
+    if not chunks or not b.xy:  # nobody walking in one of the views: nothing to compare
+        offsets = (np.arange(n_off) - (b.length - 1)) * step
+        logger.warning("sync %s-%s: no moving person in one of the views", a.camera, b.camera)
+        return SyncCurve(offsets, np.zeros(n_off), [], 1.0)
+    G = _dense(b, n_fft, chunk + 1)
     for p, part in chunks:
         sup, th = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range, sigma)
         off_idx = p - lags + b.length - 1

@@ -113,3 +113,14 @@ def test_bad_inputs_name_the_problem(kind: str, message: str) -> None:
 def test_config_rejects_unknown_fields() -> None:
     with pytest.raises(ValueError, match="extra"):
         AlignConfig(sigmaa=0.1)
+
+
+def test_camera_seeing_nobody_is_flagged_not_fatal() -> None:
+    sc = make_scene(n_cams=3, n_persons=2, n_ref_frames=400, offsets=[0.0, 30.0, -20.0], seed=6)
+    kp = sc.tracks[2].keypoints.copy()
+    kp[5:] = np.nan  # five frames of detections: no usable tracklet
+    tracks = [*sc.tracks[:2], sc.tracks[2].with_(keypoints=kp, track_ids=None)]
+    res = align_cameras(tracks, sc.plane, rng=0)
+    assert "not_aligned" in res.flags["cam2"]
+    assert res.confidence["cam2"] == 0.0
+    assert res.calibration["cam1"].time_offset == pytest.approx(30.0, abs=0.25)
