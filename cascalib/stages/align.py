@@ -205,9 +205,11 @@ def _evidence(results: list[IcpResult | None], cfg: AlignConfig, la: Lanes, lb: 
     kept along tracklets."""
     rms = [r.rms for r in results if _plausible(r, cfg)]
     sig = max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
-    # evidence per frame compared, so quick (subsampled) and full runs are comparable
-    return [r.evidence(sig, la, lb) / max(1, r.n_frames) if r is not None else 0.0
-            for r in results]
+    # evidence per frame compared (so quick, subsampled and full runs are comparable) times
+    # sqrt(overlap): quality first, but a long overlap that fits counts more than a short
+    # lucky one
+    return [r.evidence(sig, la, lb) / max(1, r.n_frames) * np.sqrt(r.n_overlap / 100.0)
+            if r is not None else 0.0 for r in results]
 
 
 def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:

@@ -149,7 +149,7 @@ class IcpResult:
 
     transform : Similarity2D mapping B's ground frame into A's; score : sum of
     ``exp(-d^2 / 2 sigma^2)`` over matches (the candidate's evidence); rms : inlier RMS (m);
-    n_matches : matched detections; n_frames : overlapping frames compared;
+    n_matches : matched detections; n_frames : overlapping frames compared (of n_overlap);
     frames_a, lanes_a, frames_b, lanes_b : the matches;
     distances : their residual distances (m).
     """
@@ -164,6 +164,7 @@ class IcpResult:
     lanes_b: NDArray[np.int64]
     distances: NDArray[np.float64]
     n_frames: int = 0
+    n_overlap: int = 0
 
     def evidence(self, sigma: float, la: Lanes | None = None, lb: Lanes | None = None
                  ) -> float:
@@ -187,16 +188,20 @@ class IcpResult:
         return float(sum(best.values()))
 
 
-def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int) -> NDArray[np.int64]:
+def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int
+                    ) -> tuple[NDArray[np.int64], int]:
+    """Frames of A (at most ``max_frames``, evenly spread) where both cameras see someone,
+    and how many such frames there are in all."""
     ga = np.arange(la.pos.shape[0])
     gb = ga - offset
     ok = (gb >= 0) & (gb < lb.pos.shape[0])
     ga = ga[ok]
     ok = np.isfinite(la.pos[ga, :, 0]).any(1) & np.isfinite(lb.pos[ga - offset, :, 0]).any(1)
     ga = ga[ok]
+    n_all = int(ga.size)
     if ga.size > max_frames:
         ga = ga[np.linspace(0, ga.size - 1, max_frames).astype(int)]
-    return ga
+    return ga, n_all
 
 
 def _compact(pos: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
@@ -250,7 +255,7 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
     -------
     IcpResult, or None when the cameras share fewer than 10 matched detections.
     """
-    ga = _overlap_frames(la, lb, offset, max_frames)
+    ga, n_overlap = _overlap_frames(la, lb, offset, max_frames)
     if ga.size < 10:
         return None
     pa, ia = _compact(la.pos[ga])
@@ -289,7 +294,7 @@ def icp_pair(la: Lanes, lb: Lanes, offset: int, angle: float, *, sigma: float = 
     score = float(np.exp(-0.5 * d2 / sigma**2).sum())
     rms = float(np.sqrt(np.mean(d2))) if d2.size else np.inf
     return IcpResult(tr, score, rms, int(fi.size), ga[fi], ia[fi, ka], ga[fi] - offset,
-                     ib[fi, kb], np.sqrt(d2), int(ga.size))
+                     ib[fi, kb], np.sqrt(d2), int(ga.size), n_overlap)
 
 
 def _noise_sd(xa: NDArray[np.float64], xb: NDArray[np.float64],

@@ -116,8 +116,11 @@ def make_scene(*, n_cams: int = 3, n_persons: int = 3, n_ref_frames: int = 900,
     dur = (n_ref_frames + 2 * max(abs(o) for o in offsets) + 10) / fps[0] * 1.2
     t0 = max(abs(o) for o in offsets) / fps[0] + 1.0
     if path == "loop":
-        walkers = [loop_path(rng, period * rng.uniform(0.9, 1.1), variability)
-                   for _ in range(n_persons)]
+        # radius for a walking pace of 1.3 m/s around the (1.3 x 1) ellipse
+        walkers = []
+        for _ in range(n_persons):
+            per = period * rng.uniform(0.9, 1.1)
+            walkers.append(loop_path(rng, per, variability, radius=1.3 * per / (2.3 * np.pi)))
     else:
         walkers = [smooth_path(rng, dur + 2 * t0, area=7.0) for _ in range(n_persons)]
     cams = ring_cameras(n_cams, rng)
