@@ -174,3 +174,21 @@ def test_refine_end_to_end_small():
     assert all(q.verdict == "accepted" for q in res.quality.values())
     assert res.poses3d.shape[1:] == (3, 26, 3)
     assert set(res.calibration.quality) == {c.name for c in est}
+
+
+def test_bone_targets_pool_left_right_per_track():
+    from cascalib.stages.refine import _bones, bone_targets
+    names = ("left_hip", "left_knee", "right_hip", "right_knee")
+    bones, classes = _bones(names)
+    assert len(bones) == 2 and classes[0] == classes[1]
+    pts = np.zeros((6, 4, 3))
+    pts[:, 1, 2] = -0.40  # left thigh 0.40 m
+    pts[:, 3, 2] = -0.44  # right thigh 0.44 m
+    pts[3:, 1, 2] = -0.50
+    pts[3:, 3, 2] = -0.50
+    tracks = np.array([0, 0, 0, 1, 1, 1])
+    t = bone_targets(pts, tracks, bones, classes)
+    assert t[0][classes[0]] == pytest.approx(0.42)
+    assert t[1][classes[0]] == pytest.approx(0.50)
+    few = bone_targets(pts[:2], tracks[:2], bones, classes, min_samples=5)
+    assert np.isnan(few[0]).all()
