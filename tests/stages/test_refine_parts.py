@@ -154,6 +154,7 @@ def test_quality_verdicts():
     assert unit_weight_sigma(errs, sig) == pytest.approx(1.5, rel=0.02)
 
 
+@pytest.mark.slow  # ~25 s on 2 cores
 def test_refine_end_to_end_small():
     scene = make_scene(n_frames=70, n_persons=3, noise_px=0.5, offsets=(0, 0.3, -0.4, 0.2),
                        seed=11)
