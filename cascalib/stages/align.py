@@ -175,13 +175,22 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     ambiguity = rest[1] / rest[0] if len(rest) > 1 else curve.peak_ratio
     best = results[k]
     assert best is not None
-    fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best,
-                      int(round(curve.candidates[k].offset)), sigma=cfg.refine_sigma,
-                      estimate_rate=cfg.estimate_rate, scale_range=sr,
-                      margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref),
-                      noise_a=noise[i], noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd,
-                      corr_frames=0.5 * fps_ref,
-                      rng=rng)
+    offset = int(round(curve.candidates[k].offset))
+    kw = dict(sigma=cfg.refine_sigma, estimate_rate=cfg.estimate_rate, scale_range=sr,
+              margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref), noise_a=noise[i],
+              noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd, corr_frames=0.5 * fps_ref)
+    fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)
+    for _ in range(3):
+        # the coarse peak can sit a few frames off (broad peaks in crowds): when the fit runs
+        # into its +-6 frame bound, re-associate at its offset and fit again
+        if fit is None or abs(fit.pivot_offset - offset) < 4.0:
+            break
+        offset = int(round(fit.pivot_offset))
+        moved = _icp(i, j, offset, fit.transform.angle, lanes, cfg, sr)
+        if moved is None:
+            break
+        best = moved
+        fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)
     if fit is None:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0)
     logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",

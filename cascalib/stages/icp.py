@@ -317,7 +317,8 @@ class SyncFit:
     ``u_a = rate * u_b + offset`` (grid times in reference frames) and ``x_a = T(x_b)``.
     ``pairs_a``, ``pairs_b`` (n, 2): matched ground points (at the fitted time) for the global
     alignment; ``rms``: robust residual (m); ``offset_sd``, ``rate_sd``: 1-sigma of the offset
-    at ``u_b = 0`` (frames) and of the rate.
+    at ``u_b = 0`` (frames) and of the rate; ``pivot_offset``: the offset in the middle of the
+    matched samples (where the integer ICP offset applies).
     """
 
     offset: float
@@ -328,6 +329,7 @@ class SyncFit:
     pairs_a: NDArray[np.float64]
     pairs_b: NDArray[np.float64]
     rate_sd: float = np.inf
+    pivot_offset: float = np.nan
 
 
 def _sync_samples(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult,
@@ -476,4 +478,4 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
         sel = rng.choice(sel, 400, replace=False)
     pb_native = tr.inverse().apply(pb[sel])
     return SyncFit(float(offset_at_zero), float(rate), tr, rms, off_sd, xa[sel], pb_native,
-                   rate_sd)
+                   rate_sd, float(p[0]))
