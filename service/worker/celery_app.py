@@ -91,8 +91,14 @@ def supervise(job_id: str, attempt: int, store: Store, settings: Settings) -> st
     Returns the job's state when the child died without recording an end (re-queued or
     failed), else None.
     """
-    proc = subprocess.Popen([sys.executable, "-m", "service.worker.job_process", job_id,
-                             str(attempt)])
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "service.worker.job_process", job_id,
+                                 str(attempt)])
+    except OSError as exc:
+        with store.session() as session:
+            return st.requeue_or_fail(session, job_id=job_id, attempt=attempt,
+                                      reason=f"cannot start the job process ({exc})",
+                                      max_attempts=settings.max_attempts)
     try:
         while True:
             try:
