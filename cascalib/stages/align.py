@@ -76,9 +76,12 @@ class AlignmentResult:
         Cameras in the reference camera's plane frame (z up, ground z = 0, metres from the
         height prior) with ``time_offset`` / ``time_rate`` per the time convention.
     confidence : dict of str to float
-        Per camera, in [0, 1]: 1 - ambiguity of its best accepted pair (reference: 1).
+        Per camera, in [0, 1]: 1 - ambiguity of its best accepted pair, times the share of its
+        pairs that agree with the global clocks (reference: 1).
     flags : dict of str to list of str
-        Per camera: ``"ambiguous"``, ``"not_aligned"``, ``"rejected_pair:<other>"``.
+        Per camera: ``"ambiguous"`` (runner-up offset nearly as good), ``"inconsistent"``
+        (most of its pairs disagree with the global clocks), ``"not_aligned"``,
+        ``"rejected_pair:<other>"``.
     pairs : list of PairAlignment
         Pairwise results incl. the sync cost curves (for plots).
     ground : list of GroundTracks
@@ -412,9 +415,15 @@ def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks]
         if Tc is None:
             fl.append("not_aligned")
             Tc = Similarity2D(0.0, np.zeros(2))
-        conf = 1.0 if c == ref else max((1.0 - p.ambiguity for p in acc), default=0.0)
+        # confidence: the best accepted pair's margin over its runner-up, scaled by the
+        # share of the camera's pairs that agree with the global clocks (cycle consistency)
+        fitted = [p for p in inc if p.fit is not None]
+        agree = len(acc) / max(1, len(fitted))
+        conf = 1.0 if c == ref else agree * max((1.0 - p.ambiguity for p in acc), default=0.0)
         if c != ref and acc and min(p.ambiguity for p in acc) > cfg.ambiguity_ratio:
             fl.append("ambiguous")
+        if c != ref and acc and agree < 0.5:
+            fl.append("inconsistent")
         cam = _place(cams[c], Tc).with_(fps=fps[c], time_offset=float(b[c]),
                                         time_rate=float(a[c] * rho[c]))
         if T[c] is None:
