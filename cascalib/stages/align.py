@@ -369,7 +369,9 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     known = fps[ref] is not None and all(f is not None for f in fps)
     fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0
     rho = [fps_ref / f if known else 1.0 for f in fps]  # type: ignore[operator]
-    ground = [_ground(t, c, f, cfg) for t, c, f in zip(tracks, plane_cameras, fps, strict=True)]
+    with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
+        ground = list(pool.map(lambda c: _ground(tracks[c], plane_cameras[c], fps[c], cfg),
+                               range(n)))
     step = max(1, int(round(fps_ref / cfg.coarse_rate)))
     coarse = [resample_tracks(g, r, float(step)) for g, r in zip(ground, rho, strict=True)]
     fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
