@@ -145,23 +145,25 @@ def test_celery_reaper_requeues_job_of_dead_worker(tmp_path: Path) -> None:
 def test_kill_worker_mid_job_then_restart(kind: str, tmp_path: Path) -> None:
     dep, pg = build_deployment(kind, tmp_path, CASCALIB_MAX_ATTEMPTS="3",
                                CASCALIB_MAX_UPLOAD_BYTES=str(200 * 2**20))
+    token = next_token()
     try:
-        with dep.client(next_token()) as c:
+        with dep.client(token) as c:
             job_id = submit(c, sim_files(tmp_path), {}).json()["id"]
             deadline = time.monotonic() + 300
             while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
                 assert time.monotonic() < deadline
                 time.sleep(0.2)
-            if kind == "celery":
-                for w in dep.workers:
-                    w.kill()
-                dep.workers.clear()
-                time.sleep(1)
-                dep.start_worker()
-            else:
-                assert dep.server is not None
-                dep.server.kill()
-                dep.start_server()
+        if kind == "celery":
+            for w in dep.workers:
+                w.kill()
+            dep.workers.clear()
+            time.sleep(1)
+            dep.start_worker()
+        else:
+            assert dep.server is not None
+            dep.server.kill()
+            dep.start_server()  # on a new port
+        with dep.client(token) as c:
             job = wait_finished(c, job_id, timeout=900)
         assert job["status"] in ("succeeded", "failed")
         assert job["attempts"] == 2
