@@ -331,6 +331,10 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
             Kmat = cal.K()
             k1, k2, p1, p2 = cal.k()
             dist = np.array([k1, k2, p1, p2, 0.0])
+        # skew is held at 0 by a tight prior: drop its numerical residue, so that writers of
+        # skew-free formats (COLMAP) accept the camera
+        Kmat = np.array(Kmat, dtype=np.float64)
+        Kmat[0, 1] = 0.0
         cams.append(cam.with_(R=R, t=t, K=Kmat, dist=dist))
     keys = prob.point_keys()
     points = np.full(prob.points0.shape, np.nan)
