@@ -29,9 +29,11 @@ from collections.abc import Mapping, Sequence
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from cascalib.errors import EstimationFailed
+from cascalib.camera import Camera
+from cascalib.errors import EstimationFailed, InputError
 from cascalib.stages.single_view_fit import SingleViewFit, fit_observations
 from cascalib.stages.single_view_result import SingleViewResult
 from cascalib.stages.upright import extract_observations, upright_mask
@@ -154,12 +156,25 @@ class SingleViewConfig(BaseModel):
                     "diagonal (everyone in one spot).")
     min_detections: int = Field(
         3, ge=3, description="Fewest upright detections to attempt a fit (3: the minimal DLT).")
+    max_normal_sd_deg: float = Field(
+        2.0, gt=0.0,
+        description="With known intrinsics (no focal interval to judge): refuse when the "
+                    "ground normal's 1-s.d. exceeds this (deg), e.g. all vertical lines on one "
+                    "image line.")
 
 
 def calibrate_single_view(tracks: Tracks, config: SingleViewConfig | None = None, *,
                           height: float | Mapping[int, float] | Sequence[float] | None = None,
-                          rng: np.random.Generator | int | None = None) -> SingleViewResult:
+                          rng: np.random.Generator | int | None = None,
+                          known_intrinsics: tuple[NDArray[np.float64], NDArray[np.float64]]
+                          | None = None) -> SingleViewResult:
     """Estimate focal length, principal point and ground plane of one camera.
+
+    With ``known_intrinsics`` (e.g. from a checkerboard) only the ground plane (normal and
+    camera height) is estimated: the keypoints are undistorted first and mapped to an ideal
+    pinhole with square pixels of focal ``fx`` (the y pixels scaled by ``fx / fy`` about
+    ``cy``), the focal length and principal point are held fixed throughout, and no focal
+    interval can cause a refusal.
 
     Parameters
     ----------
@@ -171,6 +186,11 @@ def calibrate_single_view(tracks: Tracks, config: SingleViewConfig | None = None
         id); default ``config.default_height``.
     rng : Generator, int or None
         Randomness of RANSAC and the subsampling.
+    known_intrinsics : (ndarray (3, 3), ndarray (5,)), optional
+        Known ``K`` and OpenCV distortion ``(k1, k2, p1, p2, k3)``. The result then reports
+        ``focal = K[0, 0]``, the interval ``(focal, focal)``, ``principal_point = K[:2, 2]``
+        (not estimated) and its ``ankle``/``upper`` pixels are the ideal square pixels; its
+        :meth:`~SingleViewResult.to_camera` carries ``K`` and the distortion unchanged.
 
     Returns
     -------
@@ -182,38 +202,94 @@ def calibrate_single_view(tracks: Tracks, config: SingleViewConfig | None = None
         Too few upright people, everyone in one spot, a camera looking straight down or
         horizontally, or a focal interval wider than ``config.max_focal_uncertainty``. The
         exception's ``partial`` attribute holds the best (untrustworthy) result when there is
-        one.
+        one. With ``known_intrinsics``: too few upright people, everyone in one spot, or a
+        ground normal more uncertain than ``config.max_normal_sd_deg``.
+    InputError
+        ``known_intrinsics`` of the wrong shape or with a non-positive focal length.
     """
     cfg = config or SingleViewConfig()
     rng = np.random.default_rng(rng)
     t0 = time.perf_counter()
     size = tracks.require_image_size()
-    kp = tracks.canonical()
-    mask = upright_mask(kp, size, max_bend_deg=cfg.max_bend_deg,
-                        min_confidence=cfg.min_confidence, border_px=cfg.border_px,
-                        leg_torso_ratio=cfg.leg_torso_ratio,
-                        min_pixel_height=cfg.min_pixel_height)
+    raw = tracks
+    known = None
+    if known_intrinsics is not None:
+        known = _check_intrinsics(known_intrinsics, tracks)
+        tracks = _ideal_tracks(tracks, *known)
+    mask = _upright(tracks, raw, cfg)
     n_det = tracks.n_detections
     logger.info("camera %s: %d of %d detections upright", tracks.camera, int(mask.sum()), n_det)
     ex = extract_observations(
         tracks, mask, ratios=cfg.joint_height_ratios, upper_points=cfg.upper_points,
         height=cfg.default_height if height is None else height,
         default_height=cfg.default_height, min_confidence=cfg.min_confidence)
+    focal, c = (None, None) if known is None else (float(known[0][0, 0]), known[0][:2, 2])
     try:
-        fit = fit_observations(ex.obs, size, cfg, rng=rng)
+        fit = fit_observations(ex.obs, size, cfg, rng=rng, focal=focal, principal_point=c)
     except EstimationFailed as err:
         partial = getattr(err, "partial", None)
         new = EstimationFailed(
             f"{err.message} ({int(mask.sum())} upright of {n_det} detections)",
             file=tracks.source, camera=tracks.camera, field="keypoints")
         if isinstance(partial, SingleViewFit):
-            new.partial = _result(tracks, ex, partial, mask, t0)  # type: ignore[attr-defined]
+            new.partial = _result(tracks, ex, partial, mask, t0,  # type: ignore[attr-defined]
+                                  known)
         raise new from None
-    return _result(tracks, ex, fit, mask, t0)
+    return _result(tracks, ex, fit, mask, t0, known)
+
+
+def _check_intrinsics(known: tuple[NDArray[np.float64], NDArray[np.float64]], tracks: Tracks
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Validated ``(K (3, 3), dist (5,))`` copies; InputError naming the camera otherwise."""
+    K = np.asarray(known[0], dtype=np.float64)
+    dist = np.zeros(5)
+    given = np.asarray(known[1] if known[1] is not None else [], dtype=np.float64).ravel()
+    if K.shape != (3, 3) or given.size > 5 or not np.all(np.isfinite(K)) or not np.all(
+            np.isfinite(given)) or not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError(f"known intrinsics need a finite (3, 3) K with positive fx, fy and "
+                         f"at most 5 distortion coefficients, got K {K.shape}, dist "
+                         f"{given.shape}", file=tracks.source, camera=tracks.camera,
+                         field="known_intrinsics")
+    dist[:given.size] = given
+    return K.copy(), dist
+
+
+def _ideal_tracks(tracks: Tracks, K: NDArray[np.float64], dist: NDArray[np.float64]) -> Tracks:
+    """The tracks with keypoints undistorted to an ideal pinhole of focal ``fx``, square pixels.
+
+    Scaling y by ``fx / fy`` about ``cy`` (rather than averaging fx and fy) keeps the model's
+    focal exactly the known ``fx`` and is exact for any ``fy``; skew is dropped with the
+    distortion (the normalised coordinates are mapped back with ``[[fx, 0, cx], [0, fx, cy]]``).
+    """
+    cam = Camera(tracks.camera, tracks.require_image_size(), K, dist, np.eye(3), np.zeros(3))
+    kp = tracks.keypoints.copy()
+    xy = cam.undistort(kp[..., :2])
+    kp[..., :2] = K[0, 0] * xy + K[:2, 2]
+    return tracks.with_(keypoints=kp)
+
+
+def _upright(tracks: Tracks, raw: Tracks, cfg: SingleViewConfig) -> NDArray[np.bool_]:
+    """Upright mask of ``tracks``, with truncation judged on the ``raw`` (image) pixels.
+
+    Undistorted pixels can leave the image rectangle, so the border test runs on the raw
+    keypoints and the shape tests (angles, proportions, size) on the undistorted ones.
+    """
+    size = tracks.require_image_size()
+    kw = dict(max_bend_deg=cfg.max_bend_deg, min_confidence=cfg.min_confidence,
+              leg_torso_ratio=cfg.leg_torso_ratio, min_pixel_height=cfg.min_pixel_height)
+    mask = upright_mask(tracks.canonical(), size, border_px=cfg.border_px, **kw)
+    if raw is not tracks:
+        inside = upright_mask(raw.canonical(), size, border_px=cfg.border_px,
+                              **{**kw, "max_bend_deg": np.inf, "leg_torso_ratio": (0.0, np.inf),
+                                 "min_pixel_height": 0.0})
+        shape = upright_mask(tracks.canonical(), size, border_px=-np.inf, **kw)
+        mask = inside & shape
+    return mask
 
 
 def _result(tracks: Tracks, ex, fit: SingleViewFit, mask: np.ndarray,  # type: ignore[no-untyped-def]
-            t0: float) -> SingleViewResult:
+            t0: float, known: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+            ) -> SingleViewResult:
     size = tracks.require_image_size()
     diag = dict(fit.diagnostics)
     diag.update(n_detections=tracks.n_detections, n_upright=int(mask.sum()),
@@ -226,4 +302,6 @@ def _result(tracks: Tracks, ex, fit: SingleViewFit, mask: np.ndarray,  # type: i
         camera_height=fit.model.d + float(fit.diagnostics["ankle_height_m"]),
         upper_points=ex.names, frames=ex.frame, persons=ex.person, ankle=ex.obs.ankle,
         upper=ex.obs.upper, offset=fit.offsets, inliers=fit.inliers, residuals=fit.rel_error,
-        residuals_px=fit.px_error, upright_mask=mask, diagnostics=diag)
+        residuals_px=fit.px_error, upright_mask=mask, diagnostics=diag,
+        dist=np.zeros(5) if known is None else known[1].copy(),
+        known_K=None if known is None else known[0].copy())

@@ -141,20 +141,23 @@ def _max_height_rel(cfg: SingleViewConfig) -> float:
 
 
 def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c: bool,
-            size: tuple[int, int]) -> RefineResult:
+            size: tuple[int, int], fit_focal: bool = True) -> RefineResult:
     return refine(obs, model, fit_principal_point=fit_c, track_heights=cfg.track_heights,
                   height_sd_rel=max(cfg.height_sd, 1e-3) / cfg.default_height,
                   min_track_detections=cfg.min_track_detections,
                   fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                   clusters=_clusters(obs, size), image_diag=float(np.hypot(*size)),
                   loss=cfg.loss, ankle_sideways=cfg.ankle_sideways_weight,
-                  height_nuisance=cfg.height_sd > 0)
+                  height_nuisance=cfg.height_sd > 0, fit_focal=fit_focal)
 
 
 def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleViewConfig,
-             rng: np.random.Generator, diag: dict[str, Any]) -> tuple[list[GroundModel],
-                                                                      NDArray[np.bool_]]:
-    """Starting models (RANSAC+DLT and the focal grid search) and the RANSAC inliers."""
+             rng: np.random.Generator, diag: dict[str, Any], focal: float | None = None
+             ) -> tuple[list[GroundModel], NDArray[np.bool_]]:
+    """Starting models (RANSAC+DLT and the focal grid search) and the RANSAC inliers.
+
+    With a known ``focal`` RANSAC draws 2-person samples and the grid has that one focal.
+    """
     inl = np.ones(o.n, dtype=bool)
     starts: list[GroundModel] = []
     if o.n >= _MIN_RANSAC:
@@ -163,7 +166,7 @@ def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleVi
         rr = ransac(score_set, c0, f_range=f_rng, rel_thr=cfg.inlier_rel_error,
                     ang_thr=cfg.inlier_angle_deg, max_iterations=cfg.ransac_max_iterations,
                     min_sample_px=cfg.min_sample_spread * float(np.hypot(*c0 * 2)),
-                    rng=rng, confidence=cfg.ransac_confidence)
+                    rng=rng, confidence=cfg.ransac_confidence, focal=focal)
         if not isinstance(rr, str):
             diag["ransac_iterations"] = rr.n_iterations
             inl, _, _ = _classify(rr.model, o, o.offset, False, cfg)
@@ -172,20 +175,20 @@ def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleVi
             if inl.sum() < 3:
                 inl = np.ones(o.n, dtype=bool)
     else:
-        m = dlt_estimate(o, c0, f_rng)
+        m = dlt_estimate(o, c0, f_rng, focal=focal)
         if not isinstance(m, str):
             starts.append(m)
     # the 1-D focal search with a least-median score needs no inlier threshold: it rescues
     # scenes whose noise exceeds the paper's 5 % test (few, small or noisy persons)
     for subset in (inl, np.ones(o.n, dtype=bool)) if not inl.all() else (inl,):
-        g = grid_estimate(o.take(subset), c0, f_rng)
+        g = grid_estimate(o.take(subset), c0, f_rng, n_grid=60 if focal is None else 1)
         if not isinstance(g, str):
             starts.append(g)
     return starts, inl
 
 
 def _robust_start(o: Observations, starts: list[GroundModel], cfg: SingleViewConfig,
-                  size: tuple[int, int]) -> RefineResult:
+                  size: tuple[int, int], fit_focal: bool = True) -> RefineResult:
     """Refine every start on all detections with a redescending loss; keep the least median
     relative error (scale-free, so starts with different noise estimates compare fairly)."""
     best: tuple[float, RefineResult | None] = (np.inf, None)
@@ -194,7 +197,8 @@ def _robust_start(o: Observations, starts: list[GroundModel], cfg: SingleViewCon
                    min_track_detections=cfg.min_track_detections,
                    fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                    clusters=_clusters(o, size), image_diag=float(np.hypot(*size)),
-                   loss="cauchy", f_scale=2.0, ankle_sideways=cfg.ankle_sideways_weight)
+                   loss="cauchy", f_scale=2.0, ankle_sideways=cfg.ankle_sideways_weight,
+                   fit_focal=fit_focal)
         rel, _ = inlier_errors(r.model, Observations(o.ankle, o.upper, _offsets(o, r), o.group))
         score = float(np.median(rel))
         if score < best[0]:
@@ -204,7 +208,8 @@ def _robust_start(o: Observations, starts: list[GroundModel], cfg: SingleViewCon
 
 
 def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: SingleViewConfig, *,
-                     rng: np.random.Generator | int | None = None) -> SingleViewFit:
+                     rng: np.random.Generator | int | None = None, focal: float | None = None,
+                     principal_point: F64 | None = None) -> SingleViewFit:
     """Focal length, principal point and ankle plane from upright ankle/upper-point pairs.
 
     Parameters
@@ -213,6 +218,12 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
         Upright detections (N).
     image_size : (int, int)
     cfg : SingleViewConfig
+    focal : float, optional
+        Known focal length (px, square pixels): held fixed everywhere (RANSAC, grid start,
+        refinement); only the plane is estimated and the focal interval is ``(focal, focal)``.
+    principal_point : ndarray, shape (2,), optional
+        Known principal point (px), held fixed; default the image centre (then fitted per
+        ``cfg.principal_point`` unless ``focal`` is given).
 
     Returns
     -------
@@ -226,38 +237,30 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
     rng = np.random.default_rng(rng)
     w, h = image_size
     img_diag = float(np.hypot(w, h))
-    c0 = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    f_rng = focal_range(image_size, cfg.fov_range_deg)
-    if obs.n < cfg.min_detections:
-        raise EstimationFailed(
-            f"only {obs.n} upright, fully visible persons found; at least "
-            f"{cfg.min_detections} are needed (people standing or walking upright, feet and "
-            "shoulders in view)")
-    ext = np.percentile(obs.ankle, 95, axis=0) - np.percentile(obs.ankle, 5, axis=0)
-    spread = float(np.hypot(*ext)) / img_diag
-    diag: dict[str, Any] = {"ankle_spread": spread, "n_used": obs.n}
-    if spread < cfg.min_ankle_spread:
-        raise EstimationFailed(
-            f"all upright persons stand in one spot (their feet span {100 * spread:.1f} % of "
-            f"the image diagonal, need {100 * cfg.min_ankle_spread:.0f} %): the focal length "
-            "is not observable; record people standing or walking at several places spread "
-            "over the floor")
+    known = focal is not None
+    c0 = (np.array([(w - 1) / 2.0, (h - 1) / 2.0]) if principal_point is None
+          else np.asarray(principal_point, dtype=np.float64).copy())
+    f_rng = (float(focal), float(focal)) if known else focal_range(image_size,
+                                                                     cfg.fov_range_deg)
+    diag = _check_spread(obs, img_diag, cfg, known)
     o = obs.take(_subsample(obs, image_size, cfg.max_detections, rng))
-    starts, inl = _initial(o, c0, f_rng, cfg, rng, diag)
+    starts, inl = _initial(o, c0, f_rng, cfg, rng, diag, focal)
     if not starts:
         raise EstimationFailed("no focal length in the plausible range explains the "
-                               "upright persons (check the image size and the skeleton)")
+                               "upright persons (check the image size and the skeleton)"
+                               if not known else "no ground plane explains the upright "
+                               "persons with the known intrinsics (check K and the skeleton)")
     # choosing among starts needs few detections; the rounds below use all of ``o``
     best = _robust_start(o.take(np.sort(rng.permutation(o.n)[:_START_SET])), starts, cfg,
-                         image_size)
+                         image_size, fit_focal=not known)
     for _ in range(2 if o.n >= _MIN_RANSAC else 0):
         # re-classify with the noise level of the refined model, refit
         inl, _, _ = _classify(best.model, o, _offsets(o, best, _max_height_rel(cfg)), True, cfg)
         if inl.sum() < 3:
             break
-        best = _refine(o.take(inl), best.model, cfg, False, image_size)
+        best = _refine(o.take(inl), best.model, cfg, False, image_size, fit_focal=not known)
     fitted_c = False
-    if cfg.principal_point != "center" and inl.sum() >= 6:
+    if cfg.principal_point != "center" and not known and inl.sum() >= 6:
         with_c = _refine(o.take(inl), best.model, cfg, True, image_size)
         gain = (best.cost - with_c.cost) / max(with_c.sigma_px, 1e-6) ** 2
         diag.update(principal_point_sd=with_c.c_sd.tolist(), principal_point_gain=gain)
@@ -265,11 +268,32 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
                 and gain > chi2.ppf(0.999, 1))
         if cfg.principal_point == "estimate" or good:
             best, fitted_c = with_c, True
-    return _finish(obs, best, fitted_c, image_size, cfg, diag)
+    return _finish(obs, best, fitted_c, image_size, cfg, diag, known)
+
+
+def _check_spread(obs: Observations, img_diag: float, cfg: SingleViewConfig,
+                  known: bool) -> dict[str, Any]:
+    """Refuse too few detections or everyone in one spot; the diagnostics started here."""
+    if obs.n < cfg.min_detections:
+        raise EstimationFailed(
+            f"only {obs.n} upright, fully visible persons found; at least "
+            f"{cfg.min_detections} are needed (people standing or walking upright, feet and "
+            "shoulders in view)")
+    ext = np.percentile(obs.ankle, 95, axis=0) - np.percentile(obs.ankle, 5, axis=0)
+    spread = float(np.hypot(*ext)) / img_diag
+    if spread < cfg.min_ankle_spread:
+        # with a known focal one spot still leaves the normal free about one axis
+        what = "the ground plane" if known else "the focal length"
+        raise EstimationFailed(
+            f"all upright persons stand in one spot (their feet span {100 * spread:.1f} % of "
+            f"the image diagonal, need {100 * cfg.min_ankle_spread:.0f} %): {what} "
+            "is not observable; record people standing or walking at several places spread "
+            "over the floor")
+    return {"ankle_spread": spread, "n_used": obs.n}
 
 
 def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[int, int],
-            cfg: SingleViewConfig, diag: dict[str, Any]) -> SingleViewFit:
+            cfg: SingleViewConfig, diag: dict[str, Any], known: bool = False) -> SingleViewFit:
     """Classify every detection, build the interval and refuse untrustworthy results."""
     model = best.model
     offsets = _offsets(obs, best, _max_height_rel(cfg))
@@ -278,11 +302,14 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
     sd = best.log_f_sd if np.isfinite(best.log_f_sd) and best.log_f_sd < 5 else np.inf
     with np.errstate(over="ignore"):
         lo, hi = model.f * np.exp(-z * sd), model.f * np.exp(z * sd)
+    if known:
+        lo = hi = model.f  # exact: exp(+-0) could still round
     pitch = float(np.degrees(np.arcsin(np.clip(-model.n[2], -1, 1))))
     ankle_ratio = cfg.joint_height_ratios["ankle"]
     diag.update(pitch_deg=pitch, sigma_px=best.sigma_px, confidence_level=cfg.confidence_level,
                 n_inliers=int(inliers.sum()), ratio_scale=best.ratio_scale.tolist(),
                 height_scale=best.height_scale, principal_point_fitted=fitted_c,
+                focal_known=known,
                 ankle_height_m=float(ankle_ratio * np.median(offsets[:, 0] / max(
                     cfg.joint_height_ratios["shoulder"] - ankle_ratio, 1e-9))))
     fit = SingleViewFit(model, best, (float(lo), float(hi)), fitted_c, inliers, rel, px,
@@ -293,6 +320,14 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
             f"focal length not determined: {100 * cfg.confidence_level:.0f} % interval "
             f"[{lo:.0f}, {hi:.0f}] px around {model.f:.0f} px (+-{100 * half:.0f} %, limit "
             f"{100 * cfg.max_focal_uncertainty:.0f} %): {_reason(pitch, diag['ankle_spread'])}")
+        err.partial = fit  # type: ignore[attr-defined]
+        raise err
+    if known and not best.normal_sd_deg <= cfg.max_normal_sd_deg:
+        err = EstimationFailed(
+            f"ground plane not determined with the known intrinsics: normal 1-s.d. "
+            f"{best.normal_sd_deg:.2f} deg (limit {cfg.max_normal_sd_deg:.2f} deg); the upright "
+            "persons' vertical lines nearly coincide: record people at several places "
+            "spread over the floor")
         err.partial = fit  # type: ignore[attr-defined]
         raise err
     if obs.n < _MIN_RANSAC:  # too few to tell outliers from noise: all are used

@@ -17,7 +17,8 @@ Fischler & Bolles, "Random sample consensus", CACM 1981. Torr & Zisserman, "MLES
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,11 +62,14 @@ def _inliers(model: GroundModel, obs: Observations, rel_thr: float, ang_thr: flo
 
 def ransac(obs: Observations, c: F64, *, f_range: tuple[float, float], rel_thr: float,
            ang_thr: float, max_iterations: int, min_sample_px: float,
-           rng: np.random.Generator, confidence: float = 0.999) -> RansacResult | str:
+           rng: np.random.Generator, confidence: float = 0.999,
+           focal: float | None = None) -> RansacResult | str:
     """Largest consensus set over minimal 3-detection DLT solves.
 
     Samples whose ankles lie closer than ``min_sample_px`` to each other are rejected before
-    solving (three people in one spot do not determine the focal length).
+    solving (three people in one spot do not determine the focal length). With a known
+    ``focal`` the samples have 2 detections (two vertical lines give the vanishing point,
+    hence the normal) and only the plane is solved for.
 
     Returns
     -------
@@ -77,32 +81,33 @@ def ransac(obs: Observations, c: F64, *, f_range: tuple[float, float], rel_thr: 
                                                                  np.zeros(n, bool))
     needed, it = max_iterations, 0
     tries = 0
+    k = 3 if focal is None else 2
     while it < min(needed, max_iterations) and tries < 20 * max_iterations:
         tries += 1
-        idx = rng.choice(n, 3, replace=False) if n > 3 else np.arange(n)
+        idx = rng.choice(n, k, replace=False) if n > k else np.arange(n)
         a = obs.ankle[idx]
         gaps = np.linalg.norm(a[:, None] - a[None], axis=-1)[np.triu_indices(len(idx), 1)]
-        if n > 3 and gaps.min() < min_sample_px:
+        if n > k and gaps.min() < min_sample_px:
             continue
         it += 1
-        model = dlt_estimate(obs.take(idx), c, f_range)
+        model = dlt_estimate(obs.take(idx), c, f_range, focal=focal)
         if isinstance(model, str):
-            if n <= 3:
+            if n <= k:
                 break
             continue
         ok, score = _inliers(model, obs, rel_thr, ang_thr)
         if score > best[0]:
             best = (score, model, ok)
-            p_good = min(float(ok.mean()) ** 3, 1.0 - 1e-12)
+            p_good = min(float(ok.mean()) ** k, 1.0 - 1e-12)
             needed = (max_iterations if p_good < 1e-9 else
                       int(np.ceil(np.log(1 - confidence) / np.log1p(-p_good))))
-        if n <= 3:
+        if n <= k:
             break
     if best[1] is None:
-        return "no 3-person sample gave a valid focal length and ground plane"
+        return f"no {k}-person sample gave a valid focal length and ground plane"
     model, ok = best[1], best[2]
-    if ok.sum() >= 3:
-        refit = dlt_estimate(obs.take(ok), c, f_range)
+    if ok.sum() >= k:
+        refit = dlt_estimate(obs.take(ok), c, f_range, focal=focal)
         if not isinstance(refit, str):
             ok2, _ = _inliers(refit, obs, rel_thr, ang_thr)
             if ok2.sum() >= ok.sum():
@@ -255,8 +260,9 @@ def _robust_sigma(r: F64) -> float:
 
 
 def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int,
-                per_cluster: float = 1.0) -> F64:
-    """Classic or cluster-sandwich covariance, whichever gives ``log f`` the larger variance."""
+                per_cluster: float = 1.0, key: slice = slice(0, 1)) -> F64:
+    """Classic or cluster-sandwich covariance, whichever gives the ``key`` parameters (default
+    ``log f``) the larger total variance."""
     H = J.T @ J
     # a (near-)singular normal matrix means an unobservable parameter: infinite variance, not
     # the pseudo-inverse's silent zero
@@ -277,7 +283,36 @@ def _covariance(J: F64, r: F64, clusters: NDArray[np.int64], n_params: int,
     np.add.at(S, inv, scores)
     sandwich = Hinv @ (S.T @ S) @ Hinv * len(uniq) / (len(uniq) - 1)
     # the focal length (parameter 0) is what the interval is reported for
-    return sandwich if sandwich[0, 0] > classic[0, 0] else classic
+    return sandwich if np.trace(sandwich[key, key]) > np.trace(classic[key, key]) else classic
+
+
+def _solve(prob: _Problem, model: GroundModel, fit_focal: bool, sparse: bool, *, loss: str,
+           f_scale: float, max_nfev: int) -> tuple[F64, F64, Any]:
+    """Run the least squares, optionally with ``log f`` (parameter 0) held at ``model.f``.
+
+    Returns
+    -------
+    x : ndarray
+        All parameters (``log f`` included).
+    J : ndarray, shape (n_residuals, n_free)
+        Dense Jacobian of the free parameters (``log f`` column dropped when held).
+    res : OptimizeResult
+    """
+    x0 = prob.x0(model)
+    free = slice(0, None) if fit_focal else slice(1, None)
+
+    def fun(y: F64) -> F64:
+        return prob(np.r_[x0[:free.start], y])
+
+    # grouped (sparse) differencing pays off only with many per-person height columns
+    kw = dict(jac_sparsity=prob.sparsity()[:, free]) if sparse else {}
+    res = least_squares(fun, x0[free], loss=loss, f_scale=f_scale, x_scale="jac",
+                        max_nfev=max_nfev, ftol=1e-8, xtol=1e-10, **kw)
+    logger.debug("refine: %d residuals, %d params, %d evaluations, status %d", len(res.fun),
+                 len(res.x), res.nfev, res.status)
+    # dense for the covariance: 3-6 columns + one per refined ratio and tracked person
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
+    return np.r_[x0[:free.start], res.x], J, res
 
 
 def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
@@ -285,7 +320,7 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
            fit_ratios: bool, ratio_sd_rel: float,
            clusters: NDArray[np.int64], image_diag: float, loss: str = "huber",
            f_scale: float = 2.0, max_nfev: int = 100, ankle_sideways: float = 1.0,
-           height_nuisance: bool = False) -> RefineResult:
+           height_nuisance: bool = False, fit_focal: bool = True) -> RefineResult:
     """Nonlinear least squares on all inliers (see module docstring).
 
     Parameters
@@ -314,6 +349,9 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     height_nuisance : bool
         Treat the height of persons without their own height parameter as uncertain (relative
         s.d. ``height_sd_rel``): down-weights residuals along their body axis accordingly.
+    fit_focal : bool
+        False holds the focal length at ``model.f`` (known intrinsics): ``log_f_sd`` is then 0
+        and only the plane (and heights, ratios) is estimated.
     """
     hg = np.full(obs.n, -1, dtype=np.int64)
     ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
@@ -329,7 +367,6 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     n_r = obs.upper.shape[1] - 1 if fit_ratios else 0
     prob = _Problem(obs, model, fit_principal_point, hg, len(ids), prior_w,
                     n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag, ankle_sideways)
-    # grouped (sparse) differencing pays off only with many per-person height columns
     if height_nuisance:
         # persons without a height of their own: their unknown height error (relative s.d.
         # height_sd_rel) stretches the residual along the body axis by height_sd_rel * length;
@@ -337,25 +374,26 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
         length = np.linalg.norm(obs.upper - obs.ankle[:, None, :], axis=-1)
         w = 1.0 / np.sqrt(1.0 + (height_sd_rel * length / max(sigma0, 0.05)) ** 2)
         prob.w_along = np.where(np.isfinite(w) & (hg[:, None] < 0), w, 1.0)
-    kw = dict(jac_sparsity=prob.sparsity()) if len(ids) > 8 else {}
-    res = least_squares(prob, prob.x0(model), loss=loss, f_scale=max(f_scale * sigma0, 0.05),
-                        x_scale="jac", max_nfev=max_nfev, ftol=1e-8, xtol=1e-10, **kw)
-    logger.debug("refine: %d residuals, %d params, %d evaluations, status %d", len(res.fun),
-                 len(res.x), res.nfev, res.status)
-    # dense for the covariance: 4-6 columns + one per refined ratio and tracked person
-    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
-    fitted = prob.model(res.x)
-    r_px = prob.pixel_residuals(res.x)
+    x, J, res = _solve(prob, model, fit_focal, len(ids) > 8, loss=loss,
+                       f_scale=max(f_scale * sigma0, 0.05), max_nfev=max_nfev)
+    fitted = prob.model(x)
+    if not fit_focal:
+        fitted = replace(fitted, f=model.f)  # exactly, not exp(log f)
+    r_px = prob.pixel_residuals(x)
     det, _ = prob.row_detections()
     clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids))]
     r_all = np.r_[r_px, res.fun[len(r_px):]]
     n_clusters = len(np.unique(clusters)) if len(clusters) else 1
-    cov = _covariance(J, r_all, clus, len(res.x), per_cluster=obs.n / n_clusters)
+    # with the focal held, the interval that matters is the normal's (reduced columns 0, 1)
+    cov = _covariance(J, r_all, clus, J.shape[1], per_cluster=obs.n / n_clusters,
+                      key=slice(0, 1) if fit_focal else slice(0, 2))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    if not fit_focal:
+        sd = np.r_[0.0, sd]  # log f is exact
     c_sd = np.abs(sd[4] * image_diag * prob.c_dir) if fit_principal_point else np.zeros(2)
     b = prob.n_base
-    heights = {int(i): float(np.exp(v)) for i, v in zip(ids, res.x[b + n_r:], strict=True)}
-    ratios = np.exp(np.r_[0.0, res.x[b:b + n_r], np.zeros(obs.upper.shape[1] - 1 - n_r)])
+    heights = {int(i): float(np.exp(v)) for i, v in zip(ids, x[b + n_r:], strict=True)}
+    ratios = np.exp(np.r_[0.0, x[b:b + n_r], np.zeros(obs.upper.shape[1] - 1 - n_r)])
     return RefineResult(fitted, float(sd[0]), c_sd, float(np.degrees(np.hypot(sd[1], sd[2]))),
                         _robust_sigma(r_px), float(np.sum(r_px[np.abs(r_px) < _MISS_PX] ** 2)),
                         heights, ratios)

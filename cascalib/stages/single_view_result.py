@@ -51,9 +51,10 @@ class SingleViewResult:
     camera : str
     image_size : (int, int)
     focal : float
-        Focal length (px).
+        Focal length (px); with known intrinsics the known ``fx``.
     focal_interval : (float, float)
-        Confidence interval of the focal length (level ``diagnostics["confidence_level"]``).
+        Confidence interval of the focal length (level ``diagnostics["confidence_level"]``);
+        ``(focal, focal)`` with known intrinsics.
     focal_sd_rel : float
         1-s.d. relative uncertainty of the focal length.
     principal_point : ndarray, shape (2,)
@@ -70,7 +71,8 @@ class SingleViewResult:
     frames, persons : ndarray of int, shape (N,)
         Frame and person slot of each upright detection used.
     ankle : ndarray, shape (N, 2)
-        Ankle centre pixels.
+        Ankle centre pixels (with known intrinsics: undistorted, y scaled by ``fx / fy`` about
+        ``cy``, i.e. the pixels of a square-pixel pinhole of focal ``focal``; so are ``upper``).
     upper : ndarray, shape (N, K, 2)
         Upper point pixels (NaN missing).
     offset : ndarray, shape (N, K)
@@ -84,6 +86,10 @@ class SingleViewResult:
         Which detections passed the upright filter.
     diagnostics : dict
         Counts, timings, RANSAC iterations, pitch, ankle spread, refined ratios and heights.
+    dist : ndarray, shape (5,)
+        OpenCV distortion ``(k1, k2, p1, p2, k3)`` of the camera: the known one, else zeros.
+    known_K : ndarray, shape (3, 3), optional
+        The known intrinsic matrix when the intrinsics were given (then ``K`` returns it).
     """
 
     camera: str
@@ -107,6 +113,8 @@ class SingleViewResult:
     residuals_px: F64
     upright_mask: NDArray[np.bool_]
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    dist: F64 = field(default_factory=lambda: np.zeros(5))
+    known_K: F64 | None = None
 
     @property
     def n_inliers(self) -> int:
@@ -114,7 +122,9 @@ class SingleViewResult:
 
     @property
     def K(self) -> F64:
-        """Intrinsic matrix, shape (3, 3)."""
+        """Intrinsic matrix, shape (3, 3) (the known one when the intrinsics were given)."""
+        if self.known_K is not None:
+            return self.known_K.copy()
         cx, cy = self.principal_point
         return np.array([[self.focal, 0.0, cx], [0.0, self.focal, cy], [0.0, 0.0, 1.0]])
 
@@ -128,13 +138,12 @@ class SingleViewResult:
 
         World z = ground normal (up), the ground is z = 0, the camera centre is at
         ``(0, 0, camera_height)`` and the optical axis projected on the ground is world +x
-        (yaw and ground position are fixed only by the later stages).
+        (yaw and ground position are fixed only by the later stages). Intrinsics: :attr:`K`
+        and :attr:`dist`.
         """
         R = plane_frame_rotation(self.normal_cam)
         t = -self.camera_height * self.normal_cam
-        return Camera.from_params(self.camera, self.image_size, self.focal, R, t,
-                                  c=(float(self.principal_point[0]),
-                                     float(self.principal_point[1])))
+        return Camera(self.camera, self.image_size, self.K, self.dist.copy(), R, t)
 
     def predicted_upper(self) -> F64:
         """Upper points predicted from the ankles by the fitted model, shape (N, K, 2)."""

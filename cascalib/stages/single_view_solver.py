@@ -271,18 +271,21 @@ def _model_from_vp(m: F64, w: F64, a_n: F64, c: F64, scale: float, f_n: float
     return GroundModel(float(f_n / scale), c.copy(), n, d)
 
 
-def dlt_estimate(obs: Observations, c: F64, f_range: tuple[float, float]
-                 ) -> GroundModel | str:
+def dlt_estimate(obs: Observations, c: F64, f_range: tuple[float, float], *,
+                 focal: float | None = None) -> GroundModel | str:
     """Closed-form focal length and ankle plane (supplement DLT), or a message saying why not.
 
     Parameters
     ----------
     obs : Observations
-        At least 3 detections at distinct places.
+        At least 3 detections at distinct places (2 with a known ``focal``).
     c : ndarray, shape (2,)
         Principal point (px), held fixed as in the paper.
     f_range : (float, float)
         Plausible focal lengths (px); solutions outside are rejected.
+    focal : float, optional
+        Known focal length (px): only the plane is solved for (the normal is ``K^-1 m``) and
+        ``f_range`` is ignored.
 
     Returns
     -------
@@ -301,6 +304,8 @@ def dlt_estimate(obs: Observations, c: F64, f_range: tuple[float, float]
     scale = hartley_scale(np.concatenate([obs.ankle, obs.upper.reshape(-1, 2)]), c)
     m, w = vanishing_point(obs, c, scale)
     a_n = (obs.ankle - c) * scale
+    if focal is not None:
+        return _model_from_vp(m, w, a_n, c, scale, focal * scale)
     # coplanar ankles: w_i (g (m_x a_x + m_y a_y) + m_z) = c0 for all i, linear in g = 1/f'^2, c0
     q = a_n @ m[:2]
     Amat = np.c_[w * q, -np.ones(obs.n)]
