@@ -31,7 +31,7 @@ from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate, frame_links, interpolate_views
 from cascalib.stages.frame_selection import select_groups
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
-from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
+from cascalib.stages.refine_config import DEFAULT_JOINTS, HEAD_HEIGHT_FRACTIONS, RefineConfig
 from cascalib.stages.refine_graph import (
     GraphProblem,
     SolveInfo,
@@ -196,9 +196,20 @@ def bone_targets(points: NDArray[np.float64], tracks: NDArray[np.int64], bones: 
     return out
 
 
+def head_joint(points: NDArray[np.float64], names: tuple[str, ...]) -> str | None:
+    """The head keypoint that carries the height prior: the first of
+    :data:`HEAD_HEIGHT_FRACTIONS` (head top first) that is in ``names`` and reconstructed in at
+    least a tenth of the person-frames; None when there is none."""
+    n = max(points.shape[0], 1)
+    for joint in HEAD_HEIGHT_FRACTIONS:
+        if joint in names and np.isfinite(points[:, names.index(joint), 2]).sum() >= 0.1 * n:
+            return joint
+    return None
+
+
 def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: RefineConfig
                    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Stance ankles and head tops of upright persons, both (S, J) masks."""
+    """Stance ankles and head points (see :func:`head_joint`) of upright persons, (S, J) masks."""
     s, j = points.shape[:2]
     stance = np.zeros((s, j), dtype=bool)
     head = np.zeros((s, j), dtype=bool)
@@ -210,8 +221,9 @@ def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: Ref
         low = np.nanmin(np.where(np.isfinite(z), z, np.inf), axis=1)
         both = np.isfinite(z).all(1)
         stance[:, [ia, ib]] = both[:, None] & (z - low[:, None] < cfg.stance_tolerance_m)
-    if "head_top" in names:
-        ih = names.index("head_top")
+    joint = head_joint(points, names)
+    if joint is not None:
+        ih = names.index(joint)
         rise = points[:, ih, 2] - low
         ok = np.isfinite(rise) & both
         if ok.any():
@@ -221,13 +233,14 @@ def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: Ref
 
 def _height_scale(points: NDArray[np.float64], names: tuple[str, ...], cfg: RefineConfig,
                   height: float) -> float:
-    """Factor that brings the median head-top height of upright persons to the prior."""
+    """Factor that brings the median head height of upright persons to the prior."""
     stance, head = _foot_and_head(points, names, cfg)
     if not head.any() or not stance.any():
         return 1.0
     feet_z = np.nanmedian(points[stance][:, 2])
     head_z = np.nanmedian(points[head][:, 2])
-    target = cfg.head_top_fraction * height - cfg.ankle_height
+    joint = names[int(np.nonzero(head.any(0))[0][0])]
+    target = cfg.head_height(joint, height) - cfg.ankle_height
     rise = head_z - feet_z
     return float(target / rise) if rise > 0.5 else 1.0
 

@@ -19,6 +19,16 @@ DEFAULT_JOINTS: tuple[str, ...] = (
 )  # fmt: skip
 
 
+#: Height of the head keypoints above the ground as a fraction of stature, standing (Drillis &
+#: Contini 1966: vertex 1.0, eyes 0.936; ears and nose from the same tables, as in
+#: cascalib.simulate's body model). The metric scale comes from the first of these the detector
+#: gives: COCO-17 and most 17-joint detectors have no head top, only the face points.
+HEAD_HEIGHT_FRACTIONS: dict[str, float] = {
+    "head_top": 1.0, "left_eye": 0.936, "right_eye": 0.936, "left_ear": 0.928,
+    "right_ear": 0.928, "nose": 0.908,
+}
+
+
 class RefineConfig(BaseModel):
     """Stage V settings. Units: pixels (px), metres (m), reference frames, degrees (deg)."""
 
@@ -58,7 +68,9 @@ class RefineConfig(BaseModel):
     head_top_fraction: float = Field(
         0.97, gt=0.8, le=1.1, description="Height of the head_top keypoint as a fraction of "
         "stature while walking (knee flexion and a keypoint just below the vertex: 0.95-0.99 "
-        "in cascalib.simulate's gait model).")
+        "in cascalib.simulate's gait model). Other head points (when the detector has no head "
+        "top) sit lower by their standing fraction (HEAD_HEIGHT_FRACTIONS) with the same dip.")
+
     ankle_height: float = Field(
         0.07, ge=0, le=0.2, description="Height of the ankle joint above the floor (m) when "
         "the foot is in stance: 0.039 of stature (Winter 2009); the paper (L_p) uses 0.")
@@ -145,3 +157,7 @@ class RefineConfig(BaseModel):
         3.0, gt=0, description="Factor on the marginal sigmas (after the a-posteriori variance "
         "factor): marginals reflect noise, not model bias (detector bias, body-model error); "
         "calibrated against the measured errors of bench/bench_refine.py.")
+
+    def head_height(self, joint: str, height: float) -> float:
+        """Height (m) above the ground of head keypoint ``joint`` of a walking person."""
+        return (HEAD_HEIGHT_FRACTIONS[joint] + self.head_top_fraction - 1.0) * height

@@ -156,8 +156,8 @@ def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         sigma_h = cfg.height_sd * np.sqrt(n_head / max(prob.n_persons, 1))
         head = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(
             np.array([_LOOSE, _LOOSE, sigma_h])))
-        target = np.array([0.0, 0.0, cfg.head_top_fraction * prob.height])
         for s, j in zip(*heads, strict=True):
+            target = np.array([0.0, 0.0, cfg.head_height(prob.joint_names[j], prob.height)])
             graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])), target, head))
     bone = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(
         1, cfg.bone_sigma_m))
