@@ -15,9 +15,10 @@ class StageProgress:
     plain line when a stage starts and when it ends. ``quiet`` shows nothing.
     """
 
-    def __init__(self, *, quiet: bool = False, stream=sys.stderr) -> None:  # noqa: ANN001
+    def __init__(self, *, quiet: bool = False, stream=None) -> None:  # noqa: ANN001
         self.quiet = quiet
-        self.stream = stream
+        # resolved at call time: sys.stderr may have been replaced since import (tests, pipes)
+        self.stream = sys.stderr if stream is None else stream
         self.tty = bool(getattr(stream, "isatty", lambda: False)())
         self._stage: str | None = None
         self._bar: tqdm | None = None
