@@ -151,8 +151,10 @@ def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.rando
     failures: list[str] = []
     for i, t in enumerate(tracks):
         try:
+            k = cfg.known_intrinsics.get(t.camera)
+            known = None if k is None else (np.array(k.K), np.array(k.dist))
             results[t.camera] = calibrate_single_view(t, cfg.single_view, height=cfg.height,
-                                                      rng=rng)
+                                                      rng=rng, known_intrinsics=known)
             log.info("stage I %s", results[t.camera].summary())
         except EstimationFailed as exc:
             failures.append(str(exc))
