@@ -239,7 +239,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
 
     t0 = time.perf_counter()
     fps_ref = float(tracks[0].fps or 1.0 / np.nanmedian(np.diff(tracks[0].frame_times())))
-    poses = Poses3D(refined.poses3d, refined.times, fps_ref, refined.track_ids)
+    poses = Poses3D(refined.poses3d, refined.times, fps_ref, refined.track_ids,
+                    refined.residuals)
     report("triangulate", 1.0)
     timings["triangulate"] = time.perf_counter() - t0
     return CalibrationResult(refined.calibration, poses, single, aligned, refined, cfg,

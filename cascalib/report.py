@@ -60,7 +60,7 @@ def _png(fig: Figure, path: Path) -> str:
 
 def reprojection_errors(result: CalibrationResult) -> dict[str, np.ndarray]:
     """Per camera, the reprojection errors (px) of its associated keypoints."""
-    from cascalib.stages.refine import triangulate_groups
+    from cascalib.stages.reconstruct import triangulate_groups
 
     assoc = result.refinement.association
     joints = np.arange(assoc.obs.shape[2])

@@ -19,18 +19,27 @@ Cascade of one call to :func:`refine`::
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
-from cascalib.errors import InputError, RefinementFailed
+from cascalib.errors import RefinementFailed
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import Association, associate, frame_links, interpolate_views
+from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
+from cascalib.stages.reconstruct import (
+    SessionData,
+    persons_per_time,
+    poses_by_slot,
+    prepare,
+    reconstruct,
+    triangulate_groups,
+    views_at,
+)
 from cascalib.stages.refine_config import DEFAULT_JOINTS, HEAD_HEIGHT_FRACTIONS, RefineConfig
 from cascalib.stages.refine_graph import (
     GraphProblem,
@@ -42,7 +51,6 @@ from cascalib.stages.refine_graph import (
     unpack,
 )
 from cascalib.stages.time_refine import refine_offsets
-from cascalib.stages.triangulation import triangulate
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine"]
@@ -89,6 +97,8 @@ class RefineResult:
         Whether the final cameras carry an estimated principal point and distortion.
     n_selected : int
         Person-frames in the last graph.
+    residuals : ndarray, shape (T, P, 26), optional
+        Mean reprojection error (px) of each joint of ``poses3d`` over its cameras.
     """
 
     calibration: Calibration
@@ -100,58 +110,15 @@ class RefineResult:
     solves: list[SolveInfo] = field(default_factory=list)
     distortion: bool = False
     n_selected: int = 0
+    residuals: NDArray[np.float64] | None = None
 
 
-@dataclass
-class _Data:
-    """Per-camera inputs in calibration order."""
-
-    keypoints: list[NDArray[np.float64]]  # (F_c, P_c, 26, 3) canonical
-    links: list[NDArray[np.int64]]  # (F_c, P_c)
-    sizes: list[tuple[int, int]]
-    times: NDArray[np.float64]  # reference frames
-    reference: int
 
 
-def _prepare(tracks: list[Tracks], initial: Calibration) -> _Data:
-    by_name = {t.camera: t for t in tracks}
-    missing = [n for n in initial.names if n not in by_name]
-    if missing:
-        raise InputError(f"no tracks for camera(s) {missing} of the calibration",
-                         camera=missing[0], field="tracks")
-    if len(initial) < 2:
-        raise InputError("refinement needs at least two cameras", field="cameras")
-    ordered = [by_name[n] for n in initial.names]
-    kps = [t.canonical() for t in ordered]
-    links = [frame_links(k, t.track_ids) for k, t in zip(kps, ordered, strict=True)]
-    sizes = [t.image_size or cam.image_size for t, cam in zip(ordered, initial.cameras,
-                                                                 strict=True)]
-    ref = initial.names.index(initial.reference_camera)
-    times = np.arange(kps[ref].shape[0], dtype=np.float64)
-    return _Data(kps, links, sizes, times, ref)
 
 
-def _views(data: _Data, cameras: list[Camera]) -> list[NDArray[np.float64]]:
-    return [interpolate_views(k, lk, (data.times - cam.time_offset) / cam.time_rate)
-            for k, lk, cam in zip(data.keypoints, data.links, cameras, strict=True)]
 
 
-def triangulate_groups(assoc: Association, cameras: list[Camera], joints: NDArray[np.int64],
-                       *, huber_px: float = 4.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Robust triangulation of the joints ``joints`` of every group.
-
-    Returns
-    -------
-    points : ndarray, shape (G, J, 3)
-    errors : ndarray, shape (G, C, J)
-        Reprojection errors (px), NaN where unobserved.
-    """
-    obs = assoc.obs[:, :, joints]
-    n_g, n_c, n_j = obs.shape[:3]
-    uv = obs[..., :2].transpose(1, 0, 2, 3).reshape(n_c, -1, 2)
-    conf = obs[..., 2].transpose(1, 0, 2).reshape(n_c, -1)
-    X, err = triangulate(cameras, uv, conf, huber_px=huber_px)
-    return X.reshape(n_g, n_j, 3), err.reshape(n_c, n_g, n_j).transpose(1, 0, 2)
 
 
 def _bones(names: tuple[str, ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -295,11 +262,6 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
     return cameras, points, info, graph, values
 
 
-def _persons_per_time(assoc: Association) -> int:
-    if assoc.n_groups == 0:
-        return 0
-    _, counts = np.unique(assoc.times, return_counts=True)
-    return int(counts.max())
 
 
 def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Camera],
@@ -339,27 +301,9 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     return res + (prob,) if gain >= min_gain else None
 
 
-def _poses3d(assoc: Association, points: NDArray[np.float64], times: NDArray[np.float64]
-             ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Scatter group joints (G, 26, 3) into (T, P, 26, 3) slots ordered by track."""
-    n_p = max(_persons_per_time(assoc), 1)
-    poses = np.full((len(times), n_p, 26, 3), np.nan)
-    ids = np.full((len(times), n_p), -1, dtype=np.int64)
-    row = np.searchsorted(times, assoc.times)
-    order = np.lexsort((assoc.tracks, row))
-    slot = np.zeros(assoc.n_groups, dtype=np.int64)
-    r_sorted = row[order]
-    first = np.searchsorted(r_sorted, r_sorted, side="left")
-    slot[order] = np.arange(len(order)) - first
-    poses[row, slot] = points
-    ids[row, slot] = assoc.tracks
-    return poses, ids
-
-
-def _report(assoc: Association, cameras: list[Camera], sigmas: list[dict[str, float]],
-            cfg: RefineConfig) -> tuple[NDArray[np.float64], dict[str, CameraQuality]]:
-    """Final triangulation of every group and the per-camera quality."""
-    points, err = triangulate_groups(assoc, cameras, np.arange(26))
+def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
+            sigmas: list[dict[str, float]], cfg: RefineConfig) -> dict[str, CameraQuality]:
+    """Per-camera quality from the reprojection errors (G, C, 26) of the final triangulation."""
     conf = assoc.obs[..., 2]
     sig = cfg.sigma_px / np.sqrt(np.clip(np.nan_to_num(conf), cfg.min_confidence, 1.0))
     used = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
@@ -371,13 +315,16 @@ def _report(assoc: Association, cameras: list[Camera], sigmas: list[dict[str, fl
                for c, cam in enumerate(cameras)}
     for q in quality.values():
         log.info("camera %s: %s (%s)", q.camera, q.verdict, q.reason)
-    return points, quality
+    return quality
 
 
-def _sync_cost(data: _Data, cameras: list[Camera], cfg: RefineConfig, joints: NDArray[np.int64],
-               height: float) -> tuple[float, Association]:
-    """Median reprojection error of all groups triangulated by all cameras at these clocks."""
-    assoc = associate(_views(data, cameras), cameras, data.times, height=height,
+def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
+               joints: NDArray[np.int64], height: float) -> tuple[float, Association]:
+    """Median reprojection error of all groups triangulated by all cameras at these clocks, on
+    ``cfg.time_check_frames`` reference frames spread over the recording."""
+    step = max(1, len(data.times) // cfg.time_check_frames)
+    data = replace(data, times=data.times[::step])
+    assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
                       ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
                       consistency=cfg.consistency)
     step = max(1, assoc.n_groups // 2000)
@@ -386,8 +333,9 @@ def _sync_cost(data: _Data, cameras: list[Camera], cfg: RefineConfig, joints: ND
     return (float(np.median(e)) if e.size else np.inf), assoc
 
 
-def _refine_time(data: _Data, cameras: list[Camera], cfg: RefineConfig, joints: NDArray[np.int64],
-                 height: float, rng: np.random.Generator) -> list[Camera]:
+def _refine_time(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
+                 joints: NDArray[np.int64], height: float,
+                 rng: np.random.Generator) -> list[Camera]:
     """Sub-frame offsets, re-associating with the new clocks between updates.
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
@@ -437,14 +385,16 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     """
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
-    data = _prepare(tracks, initial)
+    data = prepare(tracks, initial)
     cameras = list(initial.cameras)
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     solves: list[SolveInfo] = []
     targets: dict[int, NDArray] | None = None
+    # the rounds need enough person-frames to choose max_groups from, not every frame
+    rounds = replace(data, times=data.times[::max(1, -(-len(data.times) // cfg.round_frames))])
     for r in range(cfg.n_rounds):
         refined = r > 0
-        assoc = associate(_views(data, cameras), cameras, data.times, height=height,
+        assoc = associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
                           ankle_height=cfg.ankle_height,
                           gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
                           consistency=cfg.consistency_refined if refined else cfg.consistency,
@@ -455,7 +405,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
                                    " at the same time: check the time offsets and overlap")
         sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
                             floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
-        kw = dict(height=height, n_persons=_persons_per_time(assoc), reference=data.reference,
+        kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
                   targets=targets)
         prob = _make_problem(assoc.subset(sel), cameras, cfg, **kw)
         cameras, _, info, graph, values = solve(prob, cfg)
@@ -481,13 +431,11 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             solves.append(info)
             distortion = distortion or model == "ds2"
     sigmas = marginal_sigmas(graph, values, prob)
-    final = associate(_views(data, cameras), cameras, data.times, height=height,
-                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
-                      consistency=cfg.consistency_refined)
-    points, quality = _report(final, cameras, sigmas, cfg)
-    poses, ids = _poses3d(final, points, data.times)
+    final, points, err = reconstruct(data, cameras, cfg, height)
+    quality = _report(final, err, cameras, sigmas, cfg)
+    poses, ids, resid = poses_by_slot(final, points, data.times, err)
     calib = Calibration(cameras, reference_camera=initial.reference_camera,
                         quality={n: q.to_dict() for n, q in quality.items()},
                         world=initial.world)
     return RefineResult(calib, poses, data.times, ids, quality, final, solves, distortion,
-                        len(sel))
+                        len(sel), resid)

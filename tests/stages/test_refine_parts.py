@@ -15,7 +15,9 @@ from cascalib.stages.association import (
 )
 from cascalib.stages.frame_selection import select_groups
 from cascalib.stages.quality import assess_camera, unit_weight_sigma
-from cascalib.stages.refine import _prepare, _views, refine
+from cascalib.stages.reconstruct import prepare as _prepare
+from cascalib.stages.reconstruct import views_at as _views
+from cascalib.stages.refine import refine
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.time_refine import refine_offsets
 from cascalib.stages.triangulation import triangulate

@@ -1,0 +1,183 @@
+"""3D poses of every frame from calibrated, synchronised cameras.
+
+The last step of the cascade (after Stage V) and the whole of ``cascalib triangulate`` (new
+recordings of an already calibrated rig): resample each camera's detections at the reference
+camera's frame times (its clock: offset and rate), associate the persons across cameras by their
+ground position and a triangulation check, triangulate every joint robustly (confidence weighted,
+Huber), link the persons over time, and scatter the result into a ``(T, P, 26, 3)`` array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.calibration import Calibration
+from cascalib.camera import Camera
+from cascalib.errors import InputError
+from cascalib.poses import Poses3D
+from cascalib.stages.association import Association, associate, frame_links, interpolate_views
+from cascalib.stages.refine_config import RefineConfig
+from cascalib.stages.triangulation import triangulate
+from cascalib.tracks import Tracks
+
+__all__ = ["SessionData", "prepare", "views_at", "triangulate_groups", "persons_per_time",
+           "poses_by_slot", "reconstruct", "triangulate_poses"]
+
+
+@dataclass
+class SessionData:
+    """Per-camera inputs in calibration order (canonical joints), on the reference clock."""
+
+    keypoints: list[NDArray[np.float64]]  # (F_c, P_c, 26, 3) canonical
+    links: list[NDArray[np.int64]]  # (F_c, P_c) frame-to-frame person links
+    sizes: list[tuple[int, int]]
+    times: NDArray[np.float64]  # reference frames
+    reference: int
+    fps: float  # of the reference camera (frames per second; 1.0 when unknown)
+
+
+def prepare(tracks: list[Tracks], calibration: Calibration) -> SessionData:
+    """Order ``tracks`` like ``calibration``'s cameras and map them to the canonical joints.
+
+    Raises
+    ------
+    InputError
+        If a camera of ``calibration`` has no tracks, or there are fewer than two cameras.
+    """
+    by_name = {t.camera: t for t in tracks}
+    missing = [n for n in calibration.names if n not in by_name]
+    if missing:
+        raise InputError(f"no tracks for camera(s) {missing} of the calibration (tracks are for "
+                         f"{sorted(by_name)}); camera names must match", camera=missing[0],
+                         field="tracks")
+    if len(calibration) < 2:
+        raise InputError("3D reconstruction needs at least two cameras", field="cameras")
+    ordered = [by_name[n] for n in calibration.names]
+    kps = [t.canonical() for t in ordered]
+    links = [frame_links(k, t.track_ids) for k, t in zip(kps, ordered, strict=True)]
+    sizes = [t.image_size or cam.image_size
+             for t, cam in zip(ordered, calibration.cameras, strict=True)]
+    ref = calibration.names.index(calibration.reference_camera)
+    times = np.arange(kps[ref].shape[0], dtype=np.float64)
+    rt = ordered[ref]
+    fps = rt.fps
+    if not fps and rt.timestamps is not None and len(rt.timestamps) > 1:
+        fps = 1.0 / float(np.nanmedian(np.diff(rt.frame_times())))
+    return SessionData(kps, links, sizes, times, ref, float(fps or 1.0))
+
+
+def views_at(data: SessionData, cameras: list[Camera]) -> list[NDArray[np.float64]]:
+    """Each camera's detections resampled at the reference frames through its clock."""
+    return [interpolate_views(k, lk, (data.times - cam.time_offset) / cam.time_rate)
+            for k, lk, cam in zip(data.keypoints, data.links, cameras, strict=True)]
+
+
+def triangulate_groups(assoc: Association, cameras: list[Camera], joints: NDArray[np.int64],
+                       *, huber_px: float = 4.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Robust triangulation of the joints ``joints`` of every group.
+
+    Returns
+    -------
+    points : ndarray, shape (G, J, 3)
+    errors : ndarray, shape (G, C, J)
+        Reprojection errors (px), NaN where unobserved.
+    """
+    obs = assoc.obs[:, :, joints]
+    n_g, n_c, n_j = obs.shape[:3]
+    uv = obs[..., :2].transpose(1, 0, 2, 3).reshape(n_c, -1, 2)
+    conf = obs[..., 2].transpose(1, 0, 2).reshape(n_c, -1)
+    X, err = triangulate(cameras, uv, conf, huber_px=huber_px)
+    return X.reshape(n_g, n_j, 3), err.reshape(n_c, n_g, n_j).transpose(1, 0, 2)
+
+
+def persons_per_time(assoc: Association) -> int:
+    """Most persons associated at one reference frame."""
+    if assoc.n_groups == 0:
+        return 0
+    _, counts = np.unique(assoc.times, return_counts=True)
+    return int(counts.max())
+
+
+def poses_by_slot(assoc: Association, points: NDArray[np.float64], times: NDArray[np.float64],
+                  errors: NDArray[np.float64] | None = None
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+    """Scatter group joints (G, 26, 3) into (T, P, 26, 3) slots ordered by track.
+
+    Returns the poses, the track of each slot (T, P) (-1 where empty) and, from ``errors``
+    (G, C, 26), the mean reprojection error (px) of each joint over its cameras (T, P, 26).
+    """
+    n_p = max(persons_per_time(assoc), 1)
+    poses = np.full((len(times), n_p, 26, 3), np.nan)
+    ids = np.full((len(times), n_p), -1, dtype=np.int64)
+    resid = np.full((len(times), n_p, 26), np.nan)
+    row = np.searchsorted(times, assoc.times)
+    order = np.lexsort((assoc.tracks, row))
+    slot = np.zeros(assoc.n_groups, dtype=np.int64)
+    r_sorted = row[order]
+    first = np.searchsorted(r_sorted, r_sorted, side="left")
+    slot[order] = np.arange(len(order)) - first
+    poses[row, slot] = points
+    ids[row, slot] = assoc.tracks
+    if errors is not None and assoc.n_groups:
+        seen = np.isfinite(errors)
+        total = np.where(seen, errors, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            resid[row, slot] = total / seen.sum(axis=1)
+    return poses, ids, resid
+
+
+def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, height: float
+                ) -> tuple[Association, NDArray[np.float64], NDArray[np.float64]]:
+    """Associate and triangulate all 26 canonical joints of every frame with fixed cameras.
+
+    Returns
+    -------
+    association : Association
+    points : ndarray, shape (G, 26, 3)
+    errors : ndarray, shape (G, C, 26)
+        Reprojection errors (px), NaN where unobserved.
+    """
+    assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
+                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
+                      consistency=cfg.consistency_refined)
+    points, err = triangulate_groups(assoc, cameras, np.arange(26))
+    return assoc, points, err
+
+
+def triangulate_poses(tracks: list[Tracks], calibration: Calibration, *, height: float = 1.70,
+                      config: RefineConfig | None = None) -> Poses3D:
+    """3D poses of every reference frame from a calibration (a new recording of the same rig).
+
+    Parameters
+    ----------
+    tracks : list of Tracks
+        2D detections, one per camera of ``calibration`` (matched by name); more are ignored.
+    calibration : Calibration
+        Cameras with their time offsets and rates (the reference camera's frames are the times).
+    height : float
+        Mean person height (m), used to place persons on the ground for the association.
+    config : RefineConfig, optional
+        Association gates and consistency tolerance (Stage V's refined settings).
+
+    Returns
+    -------
+    Poses3D
+        Canonical joints (T, P, 26, 3) in metres at the reference camera's frames.
+
+    Raises
+    ------
+    InputError
+        If a camera has no tracks, or no person is seen by two cameras at once.
+    """
+    cfg = config or RefineConfig()
+    data = prepare(list(tracks), calibration)
+    assoc, points, err = reconstruct(data, list(calibration.cameras), cfg, height)
+    if assoc.n_groups == 0:
+        raise InputError("no person is seen by two cameras at the same time: check that the "
+                         "tracks belong to this rig and that its time offsets fit this recording",
+                         field="tracks")
+    poses, ids, resid = poses_by_slot(assoc, points, data.times, err)
+    return Poses3D(poses, data.times, data.fps, ids, resid)
