@@ -19,7 +19,7 @@ from cascalib.errors import CascalibError
 
 #: Sub-command modules, in the order ``cascalib --help`` lists them.
 COMMANDS: tuple[str, ...] = (
-    "calibrate", "simulate", "evaluate", "convert", "tracks_info", "info", "serve",
+    "calibrate", "triangulate", "simulate", "evaluate", "convert", "tracks_info", "info", "serve",
 )
 
 #: Exit codes: 0 success, 1 calibration failed or rejected, 2 bad input or usage.

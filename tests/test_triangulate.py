@@ -1,0 +1,104 @@
+"""3D poses from an existing calibration: the API and ``cascalib triangulate``."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cascalib.cli import main
+from cascalib.errors import InputError
+from cascalib.formats import save_calibration, write_tracks
+from cascalib.poses import load_poses
+from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.reconstruct import triangulate_poses
+from cascalib.stages.refine_config import DEFAULT_JOINTS
+
+BODY = [CANONICAL_INDEX[n] for n in DEFAULT_JOINTS]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    from cascalib.simulate import simulate
+
+    return simulate("terrace", seed=2, duration_s=15.0, **{"people.n_persons": 3})
+
+
+def joint_errors(poses, scene) -> tuple[np.ndarray, int]:
+    """Distance (m) of every reconstructed body joint to the nearest true person's same joint,
+    and the number of reconstructed person-frames."""
+    truth = scene.joints3d(scene.truth.reference_camera)  # (F, P, 26, 3) at reference frames
+    est = poses.joints[:, :, BODY]
+    frames = poses.reference_frames.astype(int)
+    true = truth[frames][:, :, BODY]  # (T, Pt, J, 3)
+    d = np.linalg.norm(est[:, :, None] - true[:, None], axis=-1)  # (T, P, Pt, J)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # empty slots
+        person = np.nanmedian(d, axis=-1)  # (T, P, Pt)
+    person = np.where(np.isfinite(person), person, np.inf)
+    best = np.argmin(person, axis=-1)
+    d_best = np.take_along_axis(d, best[..., None, None], axis=2)[:, :, 0]  # (T, P, J)
+    present = np.isfinite(est[..., 0]).any(-1)
+    return d_best[present], int(present.sum())
+
+
+def test_true_calibration_reconstructs_the_people(scene):
+    poses = triangulate_poses(scene.tracks, scene.truth)
+    err, n = joint_errors(poses, scene)
+    # detector noise of a few pixels at 5-15 m: centimetres; a wrong clock or camera is decimetres
+    assert n > 0.5 * poses.joints.shape[0] * 3
+    assert np.nanmedian(err) < 0.04, np.nanmedian(err)  # measured 0.026
+    assert np.nanpercentile(err, 90) < 0.10  # measured 0.049
+    assert np.nanmedian(poses.residuals) < 3.0
+    feet = poses.joints[..., CANONICAL_INDEX["left_ankle"], 2]
+    assert abs(np.nanmedian(feet) - 0.07) < 0.05  # ankles just above the ground z = 0
+
+
+def test_wrong_clocks_are_visible_in_the_poses(scene):
+    """The calibration's time offsets are used: shifting them by 5 frames makes poses worse."""
+    shifted = replace(scene.truth, cameras=[
+        c if c.name == scene.truth.reference_camera else c.with_(time_offset=c.time_offset + 5)
+        for c in scene.truth])
+    good, _ = joint_errors(triangulate_poses(scene.tracks, scene.truth), scene)
+    bad, _ = joint_errors(triangulate_poses(scene.tracks, shifted), scene)
+    assert np.nanmedian(bad) > 2 * np.nanmedian(good)
+
+
+def test_cli_writes_pose_files(scene, tmp_path, capsys):
+    calib = tmp_path / "rig.json"
+    save_calibration(scene.truth, calib, "json")
+    # no image size in COCO results: taken from the calibration
+    inputs = [str(write_tracks(t.with_(image_size=None), tmp_path / f"{t.camera}.json",
+                               format="coco")) for t in scene.tracks]
+    code = main(["triangulate", "--calibration", str(calib), *inputs, "-o",
+                 str(tmp_path / "poses"), "--fps", "25", "--formats", "npz,trc", "--json"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames_with_persons"] > 0.5 * out["frames"]
+    assert out["median_reprojection_px"] < 3.0
+    back = load_poses(tmp_path / "poses" / "poses.npz")
+    err, _ = joint_errors(back, scene)
+    assert np.nanmedian(err) < 0.05
+    assert list((tmp_path / "poses").glob("poses_person*.trc"))
+
+
+def test_cli_names_the_camera_without_tracks(scene, tmp_path, capsys):
+    calib = tmp_path / "rig.json"
+    save_calibration(scene.truth, calib, "json")
+    one = scene.tracks[1]
+    path = write_tracks(one, tmp_path / f"{one.camera}.json", format="native")
+    other = write_tracks(scene.tracks[2], tmp_path / f"{scene.tracks[2].camera}.json",
+                         format="native")
+    code = main(["triangulate", "--calibration", str(calib), str(path), str(other)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no tracks for camera" in err and scene.truth.names[0] in err
+
+
+def test_cameras_must_match_by_name(scene):
+    renamed = [t.with_(camera=f"other{i}") for i, t in enumerate(scene.tracks)]
+    with pytest.raises(InputError, match="camera names must match"):
+        triangulate_poses(renamed, scene.truth)
