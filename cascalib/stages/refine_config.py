@@ -44,6 +44,9 @@ class RefineConfig(BaseModel):
         "not with the sequence length.")
     n_rounds: int = Field(
         3, ge=1, description="Solve / re-associate rounds (outlier rejection by re-association).")
+    round_frames: int = Field(
+        1500, ge=100, description="Reference frames (evenly spread) associated in each round to "
+        "choose the graph's person-frames from; every frame is reconstructed at the end.")
     max_iterations: int = Field(40, ge=1, description="Levenberg-Marquardt iterations per solve.")
     relative_tolerance: float = Field(
         1e-4, gt=0, description="LM stops when the error drops by less than this fraction; the "
@@ -122,6 +125,9 @@ class RefineConfig(BaseModel):
     time_search_frames: float = Field(
         1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
     time_step_frames: float = Field(0.05, gt=0, description="Grid step of that search.")
+    time_check_frames: int = Field(
+        800, ge=50, description="Reference frames (evenly spread) on which an offset update is "
+        "checked against the joint triangulation error of all cameras.")
 
     # -- intrinsics --------------------------------------------------------------------------------
     distortion: Literal["auto", "never", "always"] = Field(

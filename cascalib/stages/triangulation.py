@@ -41,7 +41,9 @@ def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np
     r1 = xy0[..., 0:1] * P[:, None, 2, :] - P[:, None, 0, :]  # (C, N, 4)
     r2 = xy0[..., 1:2] * P[:, None, 2, :] - P[:, None, 1, :]
     w2 = (w * w)[..., None]
-    M = np.einsum("cni,cnj->nij", r1 * w2, r1) + np.einsum("cni,cnj->nij", r2 * w2, r2)
+    # batched (N, 4, C) @ (N, C, 4): several times faster than the equivalent plain einsum
+    M = ((r1 * w2).transpose(1, 2, 0) @ r1.transpose(1, 0, 2)
+         + (r2 * w2).transpose(1, 2, 0) @ r2.transpose(1, 0, 2))
     n_views = (w > 0).sum(0)
     X = np.full((xy.shape[1], 3), np.nan)
     ok = n_views >= 2
