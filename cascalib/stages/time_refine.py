@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import os
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -46,9 +45,9 @@ def offset_cost(proj: NDArray[np.float64], candidates: NDArray[np.float64], *,
         Mean truncated distance (px); NaN if nothing overlaps.
     """
     d = np.linalg.norm(candidates - proj[:, None], axis=-1)  # (G, P, J)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        best = np.nanmin(_nanmedian_last(d), axis=-1)
+    # no nanmin: its all-NaN warning would need warnings.catch_warnings, which is not
+    # thread-safe (cameras are measured in threads)
+    best = np.min(np.nan_to_num(_nanmedian_last(d), nan=np.inf), axis=-1)
     best = best[np.isfinite(best)]
     if best.size == 0:
         return float("nan")
