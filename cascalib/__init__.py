@@ -26,7 +26,7 @@ _LAZY = {
     "read_tracks": "cascalib.formats", "write_tracks": "cascalib.formats",
     "load_calibration": "cascalib.formats", "save_calibration": "cascalib.formats",
     "load_session": "cascalib.session", "compare_calibrations": "cascalib.metrics",
-    "Poses3D": "cascalib.poses",
+    "Poses3D": "cascalib.poses", "triangulate_poses": "cascalib.stages.reconstruct",
 }
 
 

@@ -156,7 +156,10 @@ class RefineConfig(BaseModel):
     min_inlier_rate: float = Field(0.6, ge=0, le=1, description="Below: suspicious.")
     fail_inlier_rate: float = Field(0.3, ge=0, le=1, description="Below: failed.")
     min_observations: int = Field(50, ge=0, description="Fewer observations: failed.")
-    max_sigma_rotation_deg: float = Field(0.5, gt=0, description="Above: suspicious.")
+    max_sigma_rotation_deg: float = Field(
+        1.0, gt=0, description="Above: suspicious. The calibrated sigma tracks the true error "
+        "(0.5-0.9 deg on well-calibrated simulated rigs, several degrees on broken ones), so a "
+        "tighter threshold flags good cameras.")
     max_sigma_position_m: float = Field(0.15, gt=0, description="Above: suspicious.")
     max_sigma_focal_rel: float = Field(0.03, gt=0, description="Above: suspicious.")
     uncertainty_inflation: float = Field(
