@@ -149,7 +149,7 @@ def test_quality_verdicts():
     assert q.verdict == "failed" and "inlier rate" in q.reason
     q = assess_camera(cam, e[:10], good, 1.0, cfg)
     assert q.verdict == "failed" and "observations" in q.reason
-    q = assess_camera(cam, e, good, 30.0, cfg)
+    q = assess_camera(cam, e, good, 2 * cfg.max_sigma_rotation_deg / good["rotation"], cfg)
     assert q.verdict == "suspicious" and "rotation uncertainty" in q.reason
     sig = np.full(100000, 2.0)
     errs = np.linalg.norm(rng.normal(0, 3.0, (100000, 2)), axis=1)
