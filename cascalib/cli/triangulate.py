@@ -19,8 +19,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         description="Triangulate every frame of a recording made with an already calibrated "
                     "rig. Each INPUT is one camera, named like the calibration's cameras (the "
                     "file or folder name), a multi-camera file, or a session manifest. The "
-                    "calibration's time offsets and rates are used as they are: they must fit "
-                    "this recording (cameras started together, or hardware-synchronised).")
+                    "calibration's time offsets and rates are used as they are (cameras started "
+                    "together, or hardware-synchronised) unless --resync estimates new ones "
+                    "for this recording.")
     p.add_argument("inputs", nargs="+", metavar="INPUT", type=Path)
     p.add_argument("--calibration", required=True, type=Path, metavar="FILE",
                    help="calibration of the rig (any supported format)")
@@ -31,6 +32,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     add_camera_value_flags(p)
     p.add_argument("--height", type=float, default=1.70,
                    help="mean standing height of the people in metres, for the association")
+    p.add_argument("--resync", action="store_true",
+                   help="estimate this recording's time offsets and rates (unsynchronised "
+                        "cameras started anew); the geometry is kept. Writes "
+                        "calibration_resync.json beside the poses")
     p.add_argument("--formats", default="npz,json,trc,c3d", metavar="LIST",
                    help=f"pose files to write ({','.join(POSE_FORMATS)}; c3d needs ezc3d)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -60,6 +65,15 @@ def run(args: argparse.Namespace) -> int:
     tracks = [t if t.image_size or sizes.get(t.camera) is None
               else replace(t, image_size=sizes[t.camera]) for t in tracks]
     with StageProgress(quiet=args.quiet or args.json) as progress:
+        if args.resync:
+            from cascalib.formats import save_calibration
+            from cascalib.stages.resync import resynchronize
+
+            progress("sync", 0.0)
+            calibration = resynchronize(tracks, calibration, height=args.height)
+            progress("sync", 1.0)
+            args.output.mkdir(parents=True, exist_ok=True)
+            save_calibration(calibration, args.output / "calibration_resync.json", "json")
         progress("triangulate", 0.0)
         poses = triangulate_poses(tracks, calibration, height=args.height)
         progress("triangulate", 1.0)
@@ -74,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
                                    if poses.residuals is not None and
                                    np.isfinite(poses.residuals).any() else None),
         "outputs": [str(p) for p in written],
+        "time_offsets": {c.name: c.time_offset for c in calibration},
+        "time_rates": {c.name: c.time_rate for c in calibration},
     }
     if args.json:
         print(json.dumps(summary, indent=2))

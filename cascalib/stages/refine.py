@@ -53,7 +53,7 @@ from cascalib.stages.refine_graph import (
 from cascalib.stages.time_refine import refine_offsets
 from cascalib.tracks import Tracks
 
-__all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine"]
+__all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
 
 log = logging.getLogger(__name__)
 
@@ -333,10 +333,11 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     return (float(np.median(e)) if e.size else np.inf), assoc
 
 
-def _refine_time(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
-                 joints: NDArray[np.int64], height: float,
-                 rng: np.random.Generator) -> list[Camera]:
-    """Sub-frame offsets, re-associating with the new clocks between updates.
+def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
+                  joints: NDArray[np.int64], height: float,
+                  rng: np.random.Generator) -> list[Camera]:
+    """Sub-frame time offsets of every non-reference camera, geometry fixed, re-associating
+    with the new clocks between updates (``cfg.time_iterations`` at most).
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
@@ -418,7 +419,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             k = _height_scale(pts, tuple(cfg.joints), cfg, height)
             targets = {tr: v * k for tr, v in targets.items()}
         if cfg.refine_time:  # after the last round too: the final association uses it
-            cameras = _refine_time(data, cameras, cfg, joints, height, rng)
+            cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
     distortion = False
     passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
     for model, mode, gain in passes:
