@@ -27,6 +27,7 @@ _LAZY = {
     "load_calibration": "cascalib.formats", "save_calibration": "cascalib.formats",
     "load_session": "cascalib.session", "compare_calibrations": "cascalib.metrics",
     "Poses3D": "cascalib.poses", "triangulate_poses": "cascalib.stages.reconstruct",
+    "resynchronize": "cascalib.stages.resync",
 }
 
 
