@@ -31,7 +31,8 @@ from cascalib.camera import Camera
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
-__all__ = ["Association", "associate", "frame_links", "interpolate_views", "link_tracks"]
+__all__ = ["Association", "associate", "frame_links", "interpolate_views", "link_tracks",
+           "stitch_tracks"]
 
 log = logging.getLogger(__name__)
 
@@ -428,3 +429,95 @@ def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0
                 next_id += 1
             last_pos[int(tracks[i])] = (float(t), assoc.ground[i])
     return Association(assoc.times, assoc.obs, tracks, assoc.ground, assoc.residual)
+
+
+def _ends(times: NDArray[np.float64], ground: NDArray[np.float64], window: float
+          ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Position and velocity (per reference frame) at the last sample of a track, from a line
+    fitted to the samples of the last ``window`` frames."""
+    last = times >= times[-1] - window
+    t, g = times[last], ground[last]
+    ok = np.isfinite(g).all(1)
+    t, g = t[ok], g[ok]
+    if len(t) == 0:
+        return np.full(2, np.nan), np.zeros(2)
+    if len(t) < 3 or np.ptp(t) < 1:
+        return g[-1], np.zeros(2)
+    A = np.c_[t - t[-1], np.ones(len(t))]
+    coef = np.linalg.lstsq(A, g, rcond=None)[0]
+    return coef[1], coef[0]
+
+
+def stitch_tracks(assoc: Association, *, fps: float, max_gap_s: float = 2.0,
+                  gate_m: float = 0.5, speed_sd_m_s: float = 0.8,
+                  ambiguity: float = 0.5) -> Association:
+    """Join track fragments across gaps (occlusion, a person seen by one camera only).
+
+    :func:`link_tracks` bridges a few frames; here each fragment's end is extrapolated at its
+    walking velocity over the gap and matched one-to-one (Hungarian) with the fragments that start
+    within ``max_gap_s``, gate ``gate_m + speed_sd_m_s * gap``. A join is made only when it is
+    each side's best candidate by a clear margin (distance < ``ambiguity`` x the second best).
+    Fragments that overlap in time are never joined, so two persons seen together stay apart.
+
+    Parameters
+    ----------
+    assoc : Association
+        With ``tracks`` from :func:`link_tracks`.
+    fps : float
+        Reference frame rate (times are reference frames).
+    max_gap_s, gate_m, speed_sd_m_s : float
+        Largest gap bridged (s); gate at zero gap (m); its growth with the gap (m/s), for turns
+        and speed changes the constant-velocity extrapolation misses.
+    ambiguity : float
+        Largest ratio of a join's distance to the second-best candidate's.
+
+    Returns
+    -------
+    Association
+        Same groups, tracks renumbered 0.. in order of first appearance.
+    """
+    if assoc.n_groups == 0:
+        return assoc
+    ids, inverse = np.unique(assoc.tracks, return_inverse=True)
+    n = len(ids)
+    members = [np.flatnonzero(inverse == k) for k in range(n)]
+    members = [m[np.argsort(assoc.times[m], kind="stable")] for m in members]
+    start = np.array([assoc.times[m[0]] for m in members])
+    end = np.array([assoc.times[m[-1]] for m in members])
+    window = 0.5 * fps
+    tail = [_ends(assoc.times[m], assoc.ground[m], window) for m in members]
+    head = [_ends(-assoc.times[m][::-1], assoc.ground[m][::-1], window)[0] for m in members]
+    max_gap = max_gap_s * fps
+    gap = start[None, :] - end[:, None]  # (ends, starts), reference frames
+    allowed = (gap > 0) & (gap <= max_gap)
+    cost = np.full((n, n), np.inf)
+    for i, j in zip(*np.nonzero(allowed), strict=True):
+        pos, vel = tail[i]
+        pred = pos + vel * gap[i, j]
+        d = float(np.linalg.norm(pred - head[j]))
+        if d < gate_m + speed_sd_m_s * gap[i, j] / fps:
+            cost[i, j] = d
+    nxt = np.full(n, -1)
+    if np.isfinite(cost).any():
+        r, q = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
+        # a join must be unambiguous: in a crowd a wrong join is worse than a missed one
+        srt_r, srt_c = np.sort(cost, axis=1), np.sort(cost, axis=0)
+        second_r = srt_r[:, 1] if n > 1 else np.full(n, np.inf)
+        second_c = srt_c[1, :] if n > 1 else np.full(n, np.inf)
+        c = cost[r, q]
+        keep = (np.isfinite(c) & (c <= srt_r[r, 0]) & (c <= srt_c[0, q])
+                & (c < ambiguity * second_r[r]) & (c < ambiguity * second_c[q]))
+        nxt[r[keep]] = q[keep]
+    has_prev = np.zeros(n, dtype=bool)
+    has_prev[nxt[nxt >= 0]] = True
+    new = np.full(n, -1, dtype=np.int64)
+    label = 0
+    for k in np.argsort(start, kind="stable"):
+        if has_prev[k]:
+            continue
+        while k >= 0:
+            new[k] = label
+            k = nxt[k]
+        label += 1
+    return Association(assoc.times, assoc.obs, new[inverse], assoc.ground, assoc.residual)
+

@@ -4,7 +4,8 @@ The last step of the cascade (after Stage V) and the whole of ``cascalib triangu
 recordings of an already calibrated rig): resample each camera's detections at the reference
 camera's frame times (its clock: offset and rate), associate the persons across cameras by their
 ground position and a triangulation check, triangulate every joint robustly (confidence weighted,
-Huber), link the persons over time, and scatter the result into a ``(T, P, 26, 3)`` array.
+Huber), link the persons over time (and across gaps), and scatter the result into a
+``(T, P, 26, 3)`` array.
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError
 from cascalib.poses import Poses3D
-from cascalib.stages.association import Association, associate, frame_links, interpolate_views
+from cascalib.stages.association import (
+    Association,
+    associate,
+    frame_links,
+    interpolate_views,
+    stitch_tracks,
+)
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.triangulation import triangulate
 from cascalib.tracks import Tracks
@@ -143,6 +150,7 @@ def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, hei
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
                       ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
                       consistency=cfg.consistency_refined)
+    assoc = stitch_tracks(assoc, fps=data.fps)
     points, err = triangulate_groups(assoc, cameras, np.arange(26))
     return assoc, points, err
 
