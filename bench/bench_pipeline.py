@@ -23,6 +23,10 @@ time
     4 cameras x 3000 reference frames x 5 persons (terrace rig, 25 fps, 120 s) with the time
     of every stage, peak memory and the verdict against the targets (<= 30 s wall on 2 cores,
     <= 2 GB).
+poses
+    3D poses of every preset reconstructed with the *true* rig
+    (:func:`cascalib.triangulate_poses`): joint error against the simulated persons, and how
+    well person tracks keep one identity (purity) and one track per person (continuity).
 scaling
     Time and peak memory vs cameras (2, 4, 6), reference frames (750, 1500, 3000) and persons
     (1, 3, 5, 8), one variable at a time from 4 cameras x 1500 frames x 3 persons, with the
@@ -32,7 +36,7 @@ Usage::
 
     python bench/bench_pipeline.py                  # every table (about 20-30 min on 2 cores)
     python bench/bench_pipeline.py --quick          # 3 presets, 40 s scenes, fewer scaling points
-    python bench/bench_pipeline.py --table time     # one table: matrix | real | time | scaling
+    python bench/bench_pipeline.py --table time     # one table: matrix|real|time|scaling|poses
     python bench/bench_pipeline.py --seeds 3        # seeds 0, 1, 2 in the matrix
 
 The last lines printed are the command line that produced the tables and the total time.
@@ -51,6 +55,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -475,10 +480,83 @@ def table_scaling(values: dict[str, Sequence[int]], timeout: float) -> None:
 
 # -- main -------------------------------------------------------------------------------------
 
+def pose_identity(scene: Any, poses: Any) -> dict[str, float]:
+    """Accuracy and identity of reconstructed 3D poses against the simulator's persons.
+
+    Each reconstructed person-frame is matched to the true person whose hip centre is nearest.
+
+    Returns
+    -------
+    dict
+        ``joint_med`` / ``joint_p90`` (m, body joints of the matched person), ``tracks`` (person
+        tracks written), ``purity`` (share of person-frames whose track's majority person is
+        theirs), ``continuity`` (mean over persons of the share of their frames in their longest
+        track) and ``person_frames`` (reconstructed).
+    """
+    from cascalib.skeletons import CANONICAL_INDEX
+    from cascalib.stages.refine_config import DEFAULT_JOINTS
+
+    body = [CANONICAL_INDEX[n] for n in DEFAULT_JOINTS]
+    hips = [CANONICAL_INDEX["left_hip"], CANONICAL_INDEX["right_hip"]]
+    frames = poses.reference_frames.astype(int)
+    truth = scene.joints3d(scene.truth.reference_camera)[frames]  # (T, Pt, 26, 3)
+    est = poses.joints
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        e_hip = np.nanmean(est[:, :, hips, :2], axis=2)
+        t_hip = truth[:, :, hips, :2].mean(axis=2)
+        d = np.linalg.norm(e_hip[:, :, None] - t_hip[:, None], axis=-1)  # (T, P, Pt)
+    seen = np.isfinite(d).any(-1)
+    who = np.argmin(np.nan_to_num(d, nan=np.inf), axis=-1)  # (T, P)
+    matched = np.take_along_axis(truth, who[..., None, None], axis=1)  # (T, P, 26, 3)
+    err = np.linalg.norm(est[:, :, body] - matched[:, :, body], axis=-1)[seen]
+    ids = poses.person_ids
+    pure = total = 0
+    for k in np.unique(ids[seen & (ids >= 0)]):
+        m = seen & (ids == k)
+        pure += np.bincount(who[m]).max()
+        total += m.sum()
+    cont = []
+    for p in range(truth.shape[1]):
+        m = seen & (who == p) & (ids >= 0)
+        if m.any():
+            cont.append(np.bincount(ids[m]).max() / m.sum())
+    return {"joint_med": float(np.nanmedian(err)), "joint_p90": float(np.nanpercentile(err, 90)),
+            "tracks": float(len(np.unique(ids[ids >= 0]))),
+            "purity": pure / max(total, 1), "continuity": float(np.mean(cont)) if cont else 0.0,
+            "person_frames": float(seen.sum())}
+
+
+def table_poses(presets: Sequence[str], duration_s: float) -> None:
+    """3D poses with the true calibration: joint accuracy and person identity over time."""
+    from cascalib.simulate import simulate
+    from cascalib.stages.reconstruct import triangulate_poses
+
+    print(f"\n## 3D poses with the true rig ({duration_s:g} s scenes, seed 0): "
+          "cascalib.triangulate_poses\n")
+    print("joint m = distance of body joints to the nearest true person's (median / 90th "
+          "percentile); tracks = person\ntracks written (TRC files) for `pers` persons; purity = "
+          "share of person-frames in a track whose majority\nperson is theirs; continuity = mean "
+          "share of a person's frames in their longest track;\nperson-frames = reconstructed.\n")
+    rows = []
+    for preset in presets:
+        scene = simulate(preset, seed=0, duration_s=duration_s)
+        t0, c0 = time.perf_counter(), time.process_time()
+        poses = triangulate_poses(scene.tracks, scene.truth)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        m = pose_identity(scene, poses)
+        rows.append([preset, str(len(scene.people)), str(len(poses.reference_frames)),
+                     _pair(m["joint_med"], m["joint_p90"], ".3f"), f"{m['tracks']:.0f}",
+                     f"{m['purity']:.3f}", f"{m['continuity']:.2f}", f"{m['person_frames']:.0f}",
+                     f"{wall:.1f}", f"{cpu:.1f}"])
+    print_table(["preset", "pers", "frames", "joint m med/p90", "tracks", "purity",
+                 "continuity", "person-frames", "wall s", "CPU s"], rows)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry point (see the module docstring)."""
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("--table", choices=["matrix", "real", "time", "scaling"],
+    ap.add_argument("--table", choices=["matrix", "real", "time", "scaling", "poses"],
                     help="one table only (default: all)")
     ap.add_argument("--quick", action="store_true",
                     help="matrix on terrace, lab_ring, periodic with 40 s scenes; fewer scaling "
@@ -503,6 +581,8 @@ def main(argv: list[str] | None = None) -> int:
         "time": lambda: table_time(args.timeout),
         "scaling": lambda: table_scaling(QUICK_SCALING if args.quick else SCALING,
                                          args.timeout),
+        "poses": lambda: table_poses(QUICK_MATRIX if args.quick else MATRIX,
+                                     40.0 if args.quick else 60.0),
     }
     for name, fn in tables.items():
         if args.table in (None, name):
