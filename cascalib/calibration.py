@@ -67,3 +67,25 @@ class Calibration:
 
     def __len__(self) -> int:
         return len(self.cameras)
+
+    def subset(self, names: list[str]) -> Calibration:
+        """The cameras ``names`` only (in this calibration's order).
+
+        If the reference camera is left out, the first kept camera becomes the reference and
+        every clock is re-expressed in its frames: frame ``k`` of camera ``c`` shows reference
+        frame ``S_c k + O_c``, so in the frames of the new reference ``r`` it is
+        ``(S_c / S_r) k + (O_c - O_r) / S_r``.
+        """
+        missing = [n for n in names if n not in self]
+        if missing:
+            raise CalibrationFileError(f"no camera(s) {missing} in the calibration "
+                                       f"(cameras: {self.names})", field="cameras")
+        kept = [c for c in self.cameras if c.name in names]
+        reference = self.reference_camera
+        if reference not in names and kept:
+            r = kept[0]
+            kept = [c.with_(time_offset=(c.time_offset - r.time_offset) / r.time_rate,
+                            time_rate=c.time_rate / r.time_rate) for c in kept]
+            reference = r.name
+        return Calibration(kept, reference_camera=reference, quality=self.quality,
+                           world=self.world)

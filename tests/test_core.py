@@ -8,6 +8,7 @@ import pytest
 
 from cascalib import Camera, InputError, Tracks
 from cascalib.camera import look_at
+from cascalib.errors import CalibrationFileError
 from cascalib.skeletons import (
     CANONICAL_INDEX,
     CANONICAL_JOINTS,
@@ -154,3 +155,23 @@ def test_backprojection_to_ground_and_behind_camera():
     behind = cam.center + (cam.center - [0, 0, 1.0])
     assert np.isnan(cam.project(behind[None])).all()
     np.testing.assert_allclose(cam.center, [4.0, -3.0, 2.5], atol=1e-12)
+
+
+def test_calibration_subset_rebases_the_clocks_without_the_reference():
+    from cascalib.calibration import Calibration
+
+    cams = [Camera.from_params(n, (640, 480), 500.0, np.eye(3), np.zeros(3), time_offset=o,
+                               time_rate=s)
+            for n, o, s in (("ref", 0.0, 1.0), ("a", 12.5, 1.2), ("b", -3.0, 0.5))]
+    rig = Calibration(cams, reference_camera="ref")
+    sub = rig.subset(["b", "a"])
+    assert sub.names == ["a", "b"] and sub.reference_camera == "a"
+    assert sub["a"].time_offset == 0.0 and sub["a"].time_rate == 1.0
+    k = np.arange(0.0, 50.0, 7.0)
+    # the same instant, through the old reference and through the new one
+    old = rig["b"].time_rate * k + rig["b"].time_offset
+    new = sub["b"].time_rate * k + sub["b"].time_offset  # frames of camera a
+    np.testing.assert_allclose(rig["a"].time_rate * new + rig["a"].time_offset, old)
+    assert rig.subset(["ref", "b"])["b"].time_offset == -3.0  # reference kept: unchanged
+    with pytest.raises(CalibrationFileError, match="no camera"):
+        rig.subset(["zzz"])

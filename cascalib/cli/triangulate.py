@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from cascalib.errors import InputError
     from cascalib.formats import load_calibration
     from cascalib.session import load_session
-    from cascalib.stages.reconstruct import triangulate_poses
+    from cascalib.stages.reconstruct import match_calibration, triangulate_poses
 
     formats = tuple(f.strip() for f in args.formats.split(",") if f.strip())
     bad = [f for f in formats if f not in POSE_FORMATS]
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     sizes = {c.name: c.image_size for c in calibration}
     tracks = [t if t.image_size or sizes.get(t.camera) is None
               else replace(t, image_size=sizes[t.camera]) for t in tracks]
+    calibration = match_calibration(tracks, calibration)  # the cameras this recording has
     with StageProgress(quiet=args.quiet or args.json) as progress:
         if args.resync:
             from cascalib.formats import save_calibration

@@ -10,6 +10,7 @@ Huber), link the persons over time (and across gaps), and scatter the result int
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,8 +31,10 @@ from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.triangulation import triangulate
 from cascalib.tracks import Tracks
 
-__all__ = ["SessionData", "prepare", "views_at", "triangulate_groups", "persons_per_time",
-           "poses_by_slot", "reconstruct", "triangulate_poses"]
+log = logging.getLogger(__name__)
+
+__all__ = ["SessionData", "match_calibration", "prepare", "views_at", "triangulate_groups",
+           "persons_per_time", "poses_by_slot", "reconstruct", "triangulate_poses"]
 
 
 @dataclass
@@ -155,6 +158,31 @@ def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, hei
     return assoc, points, err
 
 
+def match_calibration(tracks: list[Tracks], calibration: Calibration) -> Calibration:
+    """The cameras of ``calibration`` that ``tracks`` have, when two or more of them do.
+
+    Cameras without tracks are left out (with a warning; the clocks are re-based if the
+    reference camera is among them, see :meth:`Calibration.subset`).
+
+    Raises
+    ------
+    InputError
+        If a track's camera is not in the calibration.
+    """
+    have = {t.camera for t in tracks}
+    unknown = sorted(have - set(calibration.names))
+    if unknown:
+        raise InputError(f"tracks for camera(s) {unknown} that the calibration does not have "
+                         f"(its cameras: {calibration.names}); camera names must match",
+                         camera=unknown[0], field="tracks")
+    present = [n for n in calibration.names if n in have]
+    if 2 <= len(present) < len(calibration):
+        log.warning("no tracks for camera(s) %s: using %s",
+                    [n for n in calibration.names if n not in have], present)
+        return calibration.subset(present)
+    return calibration
+
+
 def triangulate_poses(tracks: list[Tracks], calibration: Calibration, *, height: float = 1.70,
                       config: RefineConfig | None = None) -> Poses3D:
     """3D poses of every reference frame from a calibration (a new recording of the same rig).
@@ -162,7 +190,10 @@ def triangulate_poses(tracks: list[Tracks], calibration: Calibration, *, height:
     Parameters
     ----------
     tracks : list of Tracks
-        2D detections, one per camera of ``calibration`` (matched by name); more are ignored.
+        2D detections of two or more cameras of ``calibration`` (matched by name); cameras of
+        the calibration without tracks are left out (with a warning), tracks of unknown
+        cameras are an error. Times are the frames of the calibration's reference camera, or
+        of the first camera with tracks if the reference has none.
     calibration : Calibration
         Cameras with their time offsets and rates (the reference camera's frames are the times).
     height : float
@@ -181,6 +212,7 @@ def triangulate_poses(tracks: list[Tracks], calibration: Calibration, *, height:
         If a camera has no tracks, or no person is seen by two cameras at once.
     """
     cfg = config or RefineConfig()
+    calibration = match_calibration(tracks, calibration)
     data = prepare(list(tracks), calibration)
     assoc, points, err = reconstruct(data, list(calibration.cameras), cfg, height)
     if assoc.n_groups == 0:

@@ -18,7 +18,7 @@ import numpy as np
 from cascalib.calibration import Calibration
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.align import AlignConfig, align_cameras
-from cascalib.stages.reconstruct import prepare
+from cascalib.stages.reconstruct import match_calibration, prepare
 from cascalib.stages.refine import refine_clocks
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.tracks import Tracks
@@ -36,7 +36,8 @@ def resynchronize(tracks: list[Tracks], calibration: Calibration, *, height: flo
     Parameters
     ----------
     tracks : list of Tracks
-        The new recording, one per camera of ``calibration`` (matched by name).
+        The new recording, two or more cameras of ``calibration`` (matched by name; see
+        :func:`cascalib.stages.reconstruct.match_calibration`).
     calibration : Calibration
         The rig (world z up, ground z = 0); its time offsets and rates are replaced.
     height : float
@@ -59,6 +60,7 @@ def resynchronize(tracks: list[Tracks], calibration: Calibration, *, height: flo
     """
     rng = np.random.default_rng(rng)
     rcfg = refine or RefineConfig()
+    calibration = match_calibration(tracks, calibration)
     by_name = {t.camera: t for t in tracks}
     data = prepare(list(tracks), calibration)  # checks names and counts
     ordered = [by_name[n] for n in calibration.names]
