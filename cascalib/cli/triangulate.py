@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
 from pathlib import Path
 
 from cascalib.cli.calibrate import add_camera_value_flags
@@ -63,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     # the calibration knows each camera's image size: tracks need not repeat it
     sizes = {c.name: c.image_size for c in calibration}
     tracks = [t if t.image_size or sizes.get(t.camera) is None
-              else replace(t, image_size=sizes[t.camera]) for t in tracks]
+              else t.with_(image_size=sizes[t.camera]) for t in tracks]
     calibration = match_calibration(tracks, calibration)  # the cameras this recording has
     with StageProgress(quiet=args.quiet or args.json) as progress:
         if args.resync:
