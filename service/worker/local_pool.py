@@ -54,20 +54,25 @@ def die_with_parent() -> None:
         pass
 
 
-def _child_main(job_id: str, attempt: int, settings_values: dict[str, Any]) -> None:
-    """Entry point of a worker process (runs one claimed job, then exits)."""
+def run_claimed_job(job_id: str, attempt: int, settings: Settings) -> None:
+    """Body of a job process (embedded pool or Celery's supervised child): die with the parent,
+    log, run the claimed job against the store, release the store."""
     from service.inputs import zip_limits
     from service.worker.runner import execute_claimed
 
     die_with_parent()
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    settings = Settings(**settings_values)
     store = Store(settings.sqlalchemy_url, settings.data_dir)
     try:
         execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
                         limits=zip_limits(settings))
     finally:
         store.dispose()
+
+
+def _child_main(job_id: str, attempt: int, settings_values: dict[str, Any]) -> None:
+    """Entry point of a worker process (runs one claimed job, then exits)."""
+    run_claimed_job(job_id, attempt, Settings(**settings_values))
 
 
 class LocalPool:
