@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cascalib.camera import Camera
+from cascalib.nanstats import nanmedian_last
 from cascalib.stages.association import Association, interpolate_views
 from cascalib.stages.triangulation import triangulate
 
@@ -47,22 +48,11 @@ def offset_cost(proj: NDArray[np.float64], candidates: NDArray[np.float64], *,
     d = np.linalg.norm(candidates - proj[:, None], axis=-1)  # (G, P, J)
     # no nanmin: its all-NaN warning would need warnings.catch_warnings, which is not
     # thread-safe (cameras are measured in threads)
-    best = np.min(np.nan_to_num(_nanmedian_last(d), nan=np.inf), axis=-1)
+    best = np.min(np.nan_to_num(nanmedian_last(d), nan=np.inf), axis=-1)
     best = best[np.isfinite(best)]
     if best.size == 0:
         return float("nan")
     return float(np.minimum(best, cap).mean())
-
-
-def _nanmedian_last(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``np.nanmedian(a, axis=-1)``, several times faster for a short last axis (NaN sorts last,
-    so the median of the finite values sits at known positions)."""
-    s = np.sort(a, axis=-1)
-    n = np.isfinite(a).sum(-1)
-    hi = a.shape[-1] - 1
-    lo_v = np.take_along_axis(s, np.clip((n - 1) // 2, 0, hi)[..., None], -1)[..., 0]
-    hi_v = np.take_along_axis(s, np.clip(n // 2, 0, hi)[..., None], -1)[..., 0]
-    return np.where(n > 0, 0.5 * (lo_v + hi_v), np.nan)
 
 
 def _parabola_min(x: NDArray[np.float64], y: NDArray[np.float64]) -> float:
