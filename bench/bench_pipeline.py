@@ -55,7 +55,6 @@ import subprocess
 import sys
 import textwrap
 import time
-import warnings
 from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -483,7 +482,8 @@ def table_scaling(values: dict[str, Sequence[int]], timeout: float) -> None:
 def pose_identity(scene: Any, poses: Any) -> dict[str, float]:
     """Accuracy and identity of reconstructed 3D poses against the simulator's persons.
 
-    Each reconstructed person-frame is matched to the true person whose hip centre is nearest.
+    Each reconstructed person-frame is matched to the true person whose body joints are nearest
+    (:func:`cascalib.metrics.match_persons`).
 
     Returns
     -------
@@ -493,23 +493,15 @@ def pose_identity(scene: Any, poses: Any) -> dict[str, float]:
         theirs), ``continuity`` (mean over persons of the share of their frames in their longest
         track) and ``person_frames`` (reconstructed).
     """
+    from cascalib.metrics import match_persons
     from cascalib.skeletons import CANONICAL_INDEX
     from cascalib.stages.refine_config import DEFAULT_JOINTS
 
     body = [CANONICAL_INDEX[n] for n in DEFAULT_JOINTS]
-    hips = [CANONICAL_INDEX["left_hip"], CANONICAL_INDEX["right_hip"]]
     frames = poses.reference_frames.astype(int)
     truth = scene.joints3d(scene.truth.reference_camera)[frames]  # (T, Pt, 26, 3)
-    est = poses.joints
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        e_hip = np.nanmean(est[:, :, hips, :2], axis=2)
-        t_hip = truth[:, :, hips, :2].mean(axis=2)
-        d = np.linalg.norm(e_hip[:, :, None] - t_hip[:, None], axis=-1)  # (T, P, Pt)
-    seen = np.isfinite(d).any(-1)
-    who = np.argmin(np.nan_to_num(d, nan=np.inf), axis=-1)  # (T, P)
-    matched = np.take_along_axis(truth, who[..., None, None], axis=1)  # (T, P, 26, 3)
-    err = np.linalg.norm(est[:, :, body] - matched[:, :, body], axis=-1)[seen]
+    errors, who, seen = match_persons(poses.joints, truth, body)
+    err = errors[seen]
     ids = poses.person_ids
     pure = total = 0
     for k in np.unique(ids[seen & (ids >= 0)]):

@@ -38,12 +38,14 @@ from numpy.typing import ArrayLike, NDArray
 from cascalib.calibration import Calibration
 from cascalib.errors import CalibrationFileError
 from cascalib.geometry import rot_z, rotation_angle_deg, umeyama
+from cascalib.nanstats import nanmedian_last
 
 __all__ = [
     "CalibrationErrors",
     "CameraErrors",
     "ErrorSummary",
     "compare_calibrations",
+    "match_persons",
     "reprojection_stats",
 ]
 
@@ -386,3 +388,38 @@ def _format_table(result: CalibrationErrors) -> str:
     if s.unmatched_truth:
         lines.append(f"reference cameras without an estimate: {', '.join(s.unmatched_truth)}")
     return "\n".join(lines)
+
+
+def match_persons(estimated: NDArray[np.float64], truth: NDArray[np.float64],
+                  joints: ArrayLike | None = None
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
+    """Match each reconstructed person to the nearest true person, frame by frame.
+
+    Parameters
+    ----------
+    estimated : ndarray, shape (T, P, J, 3)
+        Reconstructed joints (NaN where missing), e.g. :attr:`cascalib.poses.Poses3D.joints`.
+    truth : ndarray, shape (T, Pt, J, 3)
+        True joints at the same times.
+    joints : array_like of int, optional
+        Joints compared (default all).
+
+    Returns
+    -------
+    errors : ndarray, shape (T, P, len(joints))
+        Distance of each joint to the same joint of the matched true person (the one with the
+        smallest median joint distance); NaN where missing.
+    person : ndarray of int, shape (T, P)
+        Index of the matched true person.
+    present : ndarray of bool, shape (T, P)
+        Slots holding a reconstructed person.
+    """
+    idx = np.arange(estimated.shape[2]) if joints is None else np.asarray(joints)
+    est, true = estimated[:, :, idx], truth[:, :, idx]
+    d = np.linalg.norm(est[:, :, None] - true[:, None], axis=-1)  # (T, P, Pt, J)
+    per_person = np.nan_to_num(nanmedian_last(d), nan=np.inf)  # (T, P, Pt); empty slots: inf
+    person = np.argmin(per_person, axis=-1)
+    errors = np.take_along_axis(d, person[..., None, None], axis=2)[:, :, 0]
+    present = np.isfinite(est[..., 0]).any(-1)
+    return errors, person, present
+

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 from cascalib.cli import main
 from cascalib.errors import InputError
 from cascalib.formats import save_calibration, write_tracks
+from cascalib.metrics import match_persons
 from cascalib.poses import load_poses
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.reconstruct import triangulate_poses
@@ -33,18 +33,9 @@ def joint_errors(poses, scene, reference: str | None = None) -> tuple[np.ndarray
     and the number of reconstructed person-frames (poses on the frames of ``reference``,
     default the true rig's reference camera)."""
     truth = scene.joints3d(reference or scene.truth.reference_camera)  # (F, P, 26, 3)
-    est = poses.joints[:, :, BODY]
     frames = poses.reference_frames.astype(int)
-    true = truth[frames][:, :, BODY]  # (T, Pt, J, 3)
-    d = np.linalg.norm(est[:, :, None] - true[:, None], axis=-1)  # (T, P, Pt, J)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # empty slots
-        person = np.nanmedian(d, axis=-1)  # (T, P, Pt)
-    person = np.where(np.isfinite(person), person, np.inf)
-    best = np.argmin(person, axis=-1)
-    d_best = np.take_along_axis(d, best[..., None, None], axis=2)[:, :, 0]  # (T, P, J)
-    present = np.isfinite(est[..., 0]).any(-1)
-    return d_best[present], int(present.sum())
+    errors, _, present = match_persons(poses.joints, truth[frames], BODY)
+    return errors[present], int(present.sum())
 
 
 def test_true_calibration_reconstructs_the_people(scene):
