@@ -18,6 +18,23 @@ from cascalib.camera import Camera, distort_normalized
 __all__ = ["reprojection_errors", "triangulate"]
 
 
+def _normal_coefficients(P: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Camera part of the DLT normal equations, shape (4, C, 16).
+
+    The rows of view ``c`` are ``x p - a`` and ``y p - b`` (``a, b, p`` the rows of ``P[c]``), so
+    their contribution ``w^2 (r1 r1^T + r2 r2^T)`` to the 4x4 normal matrix is linear in four
+    per-observation scalars ``(w^2, w^2 x, w^2 y, w^2 (x^2 + y^2))`` with coefficients that
+    depend on the camera only: ``aa^T + bb^T``, ``-(pa^T + ap^T)``, ``-(pb^T + bp^T)``, ``pp^T``.
+    """
+    a, b, p = P[:, 0, :], P[:, 1, :], P[:, 2, :]
+
+    def outer(u: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (u[:, :, None] * v[:, None, :]).reshape(len(P), 16)
+
+    return np.stack([outer(a, a) + outer(b, b), -(outer(p, a) + outer(a, p)),
+                     -(outer(p, b) + outer(b, p)), outer(p, p)])
+
+
 def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np.float64]
                   ) -> NDArray[np.float64]:
     """Batched weighted DLT.
@@ -34,28 +51,33 @@ def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np
     Returns
     -------
     X : ndarray, shape (N, 3)
-        NaN where fewer than two views have weight.
+        NaN where fewer than two views have weight or the views are degenerate.
     """
-    xy0 = np.nan_to_num(xy)
-    # rows x*P3 - P1 and y*P3 - P2 of every view, accumulated as normal equations (N, 4, 4)
-    r1 = xy0[..., 0:1] * P[:, None, 2, :] - P[:, None, 0, :]  # (C, N, 4)
-    r2 = xy0[..., 1:2] * P[:, None, 2, :] - P[:, None, 1, :]
-    w2 = (w * w)[..., None]
-    # batched (N, 4, C) @ (N, C, 4): several times faster than the equivalent plain einsum
-    M = ((r1 * w2).transpose(1, 2, 0) @ r1.transpose(1, 0, 2)
-         + (r2 * w2).transpose(1, 2, 0) @ r2.transpose(1, 0, 2))
-    n_views = (w > 0).sum(0)
-    X = np.full((xy.shape[1], 3), np.nan)
-    ok = n_views >= 2
-    if ok.any():
-        # inhomogeneous form (X, 1): a 3x3 solve is several times faster than an eigen-solve
-        A, b = M[ok, :3, :3], -M[ok, :3, 3]
-        good = np.abs(np.linalg.det(A)) > 1e-12 * np.abs(A).max(axis=(1, 2)) ** 3
-        sol = np.full((A.shape[0], 3), np.nan)
-        if good.any():
-            sol[good] = np.linalg.solve(A[good], b[good][..., None])[..., 0]
-        X[ok] = sol
-    return X
+    n_cams, n = w.shape
+    x, y = np.nan_to_num(xy[..., 0]).T, np.nan_to_num(xy[..., 1]).T  # (N, C)
+    w2 = (w * w).T
+    S = np.empty((n, 4, n_cams))
+    S[:, 0] = w2
+    np.multiply(w2, x, out=S[:, 1])
+    np.multiply(w2, y, out=S[:, 2])
+    S[:, 3] = S[:, 1] * x + S[:, 2] * y
+    # the normal equations of every point in one GEMM: (16, 4C) @ (4C, N), 4x faster than
+    # accumulating batched (4, C) @ (C, 4) products
+    m = _normal_coefficients(P).reshape(-1, 16).T @ S.reshape(n, -1).T  # (16, N)
+    # inhomogeneous form (X, 1): A X = b with A = M[:3, :3] (symmetric), b = -M[:3, 3],
+    # solved by the adjugate (Cramer), vectorised over the points
+    a00, a01, a02, a11, a12, a22 = m[0], m[1], m[2], m[5], m[6], m[10]
+    b0, b1, b2 = -m[3], -m[7], -m[11]
+    c00, c01, c02 = a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11
+    c11, c12, c22 = a00 * a22 - a02 * a02, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    scale = np.maximum.reduce([np.abs(v) for v in (a00, a01, a02, a11, a12, a22)])
+    good = ((w > 0).sum(0) >= 2) & (np.abs(det) > 1e-12 * scale**3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.where(good, 1.0 / det, np.nan)
+    return np.stack([(c00 * b0 + c01 * b1 + c02 * b2) * inv,
+                     (c01 * b0 + c11 * b1 + c12 * b2) * inv,
+                     (c02 * b0 + c12 * b1 + c22 * b2) * inv], axis=-1)
 
 
 def reprojection_errors(cameras: list[Camera], X: NDArray[np.float64], uv: NDArray[np.float64]
