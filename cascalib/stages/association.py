@@ -160,21 +160,26 @@ def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
         missing, the nearer frame's value is used if it is within half a frame, else NaN.
     """
     n_f, n_p = keypoints.shape[:2]
-    out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
     inside = (frames > -0.5) & (frames < n_f - 0.5)
-    k0 = np.clip(np.floor(frames), 0, n_f - 1).astype(int)
-    w = np.clip(frames - k0, 0.0, 1.0)
+    # only the frames inside are gathered: out-of-range times stay NaN
+    fr = frames[inside]
+    k0 = np.clip(np.floor(fr), 0, n_f - 1).astype(np.int64)
+    w = np.clip(fr - k0, 0.0, 1.0)[:, None, None, None]
     k1 = np.minimum(k0 + 1, n_f - 1)
-    a = keypoints[k0]  # (T, P, J, 3)
-    nxt = links[k0]  # (T, P)
-    b = np.take_along_axis(keypoints[k1], np.maximum(nxt, 0)[:, :, None, None], axis=1)
-    b = np.where((nxt >= 0)[:, :, None, None], b, np.nan)
-    ww = w[:, None, None, None]
-    blend = (1 - ww) * a + ww * b
-    near_a = np.where(ww <= 0.5, a, np.nan)
-    near_b = np.where(ww >= 0.5, b, np.nan)
-    res = np.where(np.isfinite(blend), blend, np.where(np.isfinite(near_a), near_a, near_b))
-    out[inside] = res[inside]
+    a = keypoints[k0]  # (T', P, J, D)
+    nxt = links[k0]  # (T', P)
+    # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
+    b = keypoints[k1[:, None], np.maximum(nxt, 0)]
+    b[nxt < 0] = np.nan
+    res = a + w * (b - a)
+    # where one side is missing, the nearer frame's value if it is within half a frame
+    gap = ~np.isfinite(res)
+    if gap.any():
+        near = np.where(w <= 0.5, a, np.nan)
+        near = np.where(np.isfinite(near), near, np.where(w >= 0.5, b, np.nan))
+        res[gap] = near[gap]
+    out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
+    out[inside] = res
     return out
 
 
