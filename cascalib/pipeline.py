@@ -223,7 +223,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     t0 = time.perf_counter()
     plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
-    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng)
+    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
+                            progress=lambda f: report("sync", f))
     initial = aligned.calibration
     if cfg.synchronized:
         initial = _synchronized(initial, tracks)
@@ -233,7 +234,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     t0 = time.perf_counter()
     report("refine", 0.0)
     rcfg = cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized else cfg.refine
-    refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng)
+    refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng,
+                     progress=lambda f: report("refine", f))
     report("refine", 1.0)
     timings["refine"] = time.perf_counter() - t0
 

@@ -48,6 +48,13 @@ def test_progress_reports_every_stage_in_order(result):
     order = [s for i, s in enumerate(stages) if i == 0 or stages[i - 1] != s]
     assert order == ["single_view", "sync", "refine", "triangulate"]
     assert all(0.0 <= f <= 1.0 for _, f in result.progress_seen)
+    for stage in order:  # within a stage the fraction never goes back, and it ends at 1
+        seen = [f for s, f in result.progress_seen if s == stage]
+        assert seen == sorted(seen) and seen[-1] == 1.0, (stage, seen)
+    # the long stages report in between, not only their start and end
+    for stage in ("sync", "refine"):
+        inner = {f for s, f in result.progress_seen if s == stage and 0.0 < f < 1.0}
+        assert len(inner) >= 3, (stage, inner)
 
 
 def test_result_keeps_every_stage_and_poses(result, scene):

@@ -19,7 +19,7 @@ class StageProgress:
         self.quiet = quiet
         # resolved at call time: sys.stderr may have been replaced since import (tests, pipes)
         self.stream = sys.stderr if stream is None else stream
-        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._stage: str | None = None
         self._bar: tqdm | None = None
         self._done = False

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -336,7 +337,8 @@ def _place(cam: Camera, T: Similarity2D) -> Camera:
 
 def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                   config: AlignConfig | None = None, *, reference: str | int | None = None,
-                  rng: np.random.Generator | int | None = None) -> AlignmentResult:
+                  rng: np.random.Generator | int | None = None,
+                  progress: Callable[[float], None] | None = None) -> AlignmentResult:
     """Synchronise all cameras and place them on the reference camera's ground plane.
 
     Parameters
@@ -349,6 +351,9 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     reference : str or int, optional
         Reference camera (name or index); default the first.
     rng : Generator or int, optional
+    progress : callable, optional
+        ``progress(fraction)`` when the ground trajectories are made and as each camera pair is
+        aligned (pairs take most of the time).
 
     Returns
     -------
@@ -382,11 +387,15 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
              for c in plane_cameras]
     ij = [(i, j) for i in range(n) for j in range(i + 1, n)]
     seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
+    report = progress or (lambda fraction: None)
+    report(0.2)
+    pairs = []
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
-        pairs = list(pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
-                                                    fps_ref, cfg,
-                                                    np.random.default_rng(seeds[k])),
-                              range(len(ij))))
+        for pair in pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
+                                                   fps_ref, cfg, np.random.default_rng(seeds[k])),
+                             range(len(ij))):
+            pairs.append(pair)
+            report(0.2 + 0.75 * len(pairs) / len(ij))
     a, b, accepted = _global_time(n, ref, pairs, cfg)
     pairs = [PairAlignment(p.i, p.j, p.curve, p.icp_scores, p.chosen, p.fit, p.ambiguity,
                            bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]

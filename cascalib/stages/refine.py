@@ -19,6 +19,7 @@ Cascade of one call to :func:`refine`::
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -357,7 +358,8 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
 
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
-           height: float = 1.70, rng: np.random.Generator | int | None = None) -> RefineResult:
+           height: float = 1.70, rng: np.random.Generator | int | None = None,
+           progress: Callable[[float], None] | None = None) -> RefineResult:
     """Refine all cameras (intrinsics, extrinsics, time offsets) and triangulate every frame.
 
     Parameters
@@ -372,6 +374,9 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         Mean person height (m): the metric scale.
     rng : Generator or seed, optional
         For the subsets of the time and distortion checks.
+    progress : callable, optional
+        ``progress(fraction)`` after each step (association, solve and clock update of every
+        round, the intrinsics passes, the final reconstruction); fractions rise to 1.
 
     Returns
     -------
@@ -386,6 +391,15 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     """
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
+    # steps: 3 per round, the two intrinsics passes, the reconstruction (roughly equal times)
+    n_steps, done = 3 * cfg.n_rounds + 3, 0
+
+    def step() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(min(done / n_steps, 1.0))
+
     data = prepare(tracks, initial)
     cameras = list(initial.cameras)
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
@@ -404,6 +418,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         if assoc.n_groups < 5:
             raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
                                    " at the same time: check the time offsets and overlap")
+        step()
         sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
                             floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
         kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
@@ -411,6 +426,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         prob = _make_problem(assoc.subset(sel), cameras, cfg, **kw)
         cameras, _, info, graph, values = solve(prob, cfg)
         solves.append(info)
+        step()
         if cfg.use_bones:
             # targets from this round's cameras, whose scale the height prior has already set
             pts, _ = triangulate_groups(assoc, cameras, joints)
@@ -420,19 +436,21 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             targets = {tr: v * k for tr, v in targets.items()}
         if cfg.refine_time:  # after the last round too: the final association uses it
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
+        step()
     distortion = False
     passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
     for model, mode, gain in passes:
-        if mode == "never":
-            continue
-        res = _intrinsics_pass(assoc, sel, cameras, cfg, kw | {"targets": targets}, rng,
-                               model=model, mode=mode, min_gain=gain)
+        res = None if mode == "never" else _intrinsics_pass(
+            assoc, sel, cameras, cfg, kw | {"targets": targets}, rng, model=model, mode=mode,
+            min_gain=gain)
         if res is not None:
             cameras, _, info, graph, values, prob = res
             solves.append(info)
             distortion = distortion or model == "ds2"
+        step()
     sigmas = marginal_sigmas(graph, values, prob)
     final, points, err = reconstruct(data, cameras, cfg, height)
+    step()
     quality = _report(final, err, cameras, sigmas, cfg)
     poses, ids, resid = poses_by_slot(final, points, data.times, err)
     calib = Calibration(cameras, reference_camera=initial.reference_camera,
