@@ -438,6 +438,10 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
         step()
     distortion = False
+    if cfg.intrinsics_groups != cfg.max_groups:
+        sel = select_groups(assoc, data.sizes, cfg.intrinsics_groups, joints,
+                            n_time_bins=cfg.n_time_bins, floor_cell_m=cfg.floor_cell_m,
+                            image_grid=cfg.image_grid)
     passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
     for model, mode, gain in passes:
         res = None if mode == "never" else _intrinsics_pass(
