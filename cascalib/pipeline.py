@@ -235,7 +235,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     report("refine", 0.0)
     rcfg = cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized else cfg.refine
     refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng,
-                     progress=lambda f: report("refine", f))
+                     progress=lambda f: report("refine", f),
+                     fixed_intrinsics=tuple(cfg.known_intrinsics))
     report("refine", 1.0)
     timings["refine"] = time.perf_counter() - t0
 

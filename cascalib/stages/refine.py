@@ -19,7 +19,7 @@ Cascade of one call to :func:`refine`::
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
-from cascalib.errors import RefinementFailed
+from cascalib.errors import InputError, RefinementFailed
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups
@@ -215,7 +215,8 @@ def _height_scale(points: NDArray[np.float64], names: tuple[str, ...], cfg: Refi
 
 def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *,
                   height: float, n_persons: int, reference: int, model: str = "f",
-                  targets: dict[int, NDArray] | None = None) -> GraphProblem:
+                  targets: dict[int, NDArray] | None = None,
+                  fixed: frozenset[int] = frozenset()) -> GraphProblem:
     names = tuple(cfg.joints)
     joints = np.array([CANONICAL_INDEX[n] for n in names])
     obs = assoc.obs.copy()
@@ -233,9 +234,24 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
         for s, tr in enumerate(assoc.tracks):
             if int(tr) in targets:
                 lengths[s] = targets[int(tr)][classes]
-    return GraphProblem(cameras, assoc.obs[:, :, joints], names, points, stance, head, bones,
-                        lengths, reference, model, height, n_persons,  # type: ignore[arg-type]
-                        sigma)
+    obs = assoc.obs[:, :, joints].copy()
+    graph_cams = list(cameras)
+    for c in fixed:
+        graph_cams[c], obs[:, c, :, :2] = ideal_pinhole(cameras[c], obs[:, c, :, :2])
+    return GraphProblem(graph_cams, obs, names, points, stance, head, bones, lengths, reference,
+                        model, height, n_persons, sigma,  # type: ignore[arg-type]
+                        {c: cameras[c] for c in fixed})
+
+
+def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray[np.float64]]:
+    """A camera of known intrinsics as the distortion-free, square-pixel pinhole that the graph's
+    calibration models (``Cal3f`` has one focal) express exactly, with its keypoints ``uv``
+    (..., 2) mapped to that pinhole's pixels (any lens model, k3 included, which gtsam's
+    ``Cal3DS2`` lacks). Pixels of the two differ by ``fx / fy`` at most."""
+    f = float(np.sqrt(cam.fx * cam.fy))
+    K = np.array([[f, 0.0, cam.K[0, 2]], [0.0, f, cam.K[1, 2]], [0.0, 0.0, 1.0]])
+    xy = cam.undistort(uv)
+    return cam.with_(K=K, dist=np.zeros(5)), xy * f + cam.K[:2, 2]
 
 
 def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noqa: ANN201
@@ -256,7 +272,9 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
         cameras, points = unpack(values, prob)
         if prob.sigma_px <= cfg.sigma_px:
             break
-        proj = np.stack([cam.project(points) for cam in cameras], axis=1)  # (S, C, J, 2)
+        # in the graph's pixels: cameras of known intrinsics observe their ideal pinhole's
+        proj = np.stack([(prob.cameras[c].with_(R=cam.R, t=cam.t) if c in prob.fixed else cam)
+                         .project(points) for c, cam in enumerate(cameras)], axis=1)  # (S,C,J,2)
         err = np.linalg.norm(proj - prob.obs[..., :2], axis=-1)
         e = err[np.isfinite(err)]
         prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
@@ -359,7 +377,8 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
-           progress: Callable[[float], None] | None = None) -> RefineResult:
+           progress: Callable[[float], None] | None = None,
+           fixed_intrinsics: Collection[str] = ()) -> RefineResult:
     """Refine all cameras (intrinsics, extrinsics, time offsets) and triangulate every frame.
 
     Parameters
@@ -377,6 +396,9 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     progress : callable, optional
         ``progress(fraction)`` after each step (association, solve and clock update of every
         round, the intrinsics passes, the final reconstruction); fractions rise to 1.
+    fixed_intrinsics : collection of str
+        Cameras whose intrinsics in ``initial`` (K and distortion) are known: they are held in
+        every solve and returned exactly as given.
 
     Returns
     -------
@@ -402,6 +424,11 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
 
     data = prepare(tracks, initial)
     cameras = list(initial.cameras)
+    unknown = sorted(set(fixed_intrinsics) - set(initial.names))
+    if unknown:
+        raise InputError(f"known intrinsics given for cameras {unknown} that the calibration "
+                         f"lacks ({initial.names})", camera=unknown[0], field="known_intrinsics")
+    fixed = frozenset(initial.names.index(n) for n in fixed_intrinsics)
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     solves: list[SolveInfo] = []
     targets: dict[int, NDArray] | None = None
@@ -422,7 +449,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
                             floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
         kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
-                  targets=targets)
+                  targets=targets, fixed=fixed)
         prob = _make_problem(assoc.subset(sel), cameras, cfg, **kw)
         cameras, _, info, graph, values = solve(prob, cfg)
         solves.append(info)

@@ -8,7 +8,9 @@ Key     Variable                                               Type
 X(c)    pose of camera c, *world_from_camera* (gtsam's Pose3)    ``gtsam.Pose3``
 K(c)    intrinsics of camera c: one focal with the principal     ``gtsam.Cal3f`` or ``Cal3DS2``
         point fixed, or fx, fy, s, principal point, k1, k2,
-        p1, p2 in the final distortion pass
+        p1, p2 in the final distortion pass; a camera whose
+        intrinsics are known is held at an ideal pinhole by a
+        tight prior, its keypoints undistorted with its lens
 P(k)    3D joint k = s * J + j: joint j of selected group s      ``gtsam.Point3`` (world, metres)
 ======  =====================================================  =================================
 
@@ -31,7 +33,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import gtsam
@@ -84,6 +86,12 @@ class GraphProblem:
         Keypoint noise (px) at confidence 1 for this solve: from a poor start it is raised to the
         spread of the initial residuals so they stay in the kernel's quadratic zone (graduated
         robustness; a Huber kernel far beyond its knee has no curvature to pull cameras back).
+    fixed : dict of int to Camera
+        Cameras whose intrinsics are known, as given (K, distortion). Their ``obs`` are already
+        undistorted to the ideal square-pixel pinhole that ``cameras`` carries for them (one
+        calibration type for every camera: gtsam's Schur-complement optimiser refuses a mix);
+        every pass holds that pinhole by a tight prior, and :func:`unpack` returns the given
+        K and distortion exactly.
     """
 
     cameras: list[Camera]
@@ -99,6 +107,7 @@ class GraphProblem:
     height: float
     n_persons: int
     sigma_px: float
+    fixed: dict[int, Camera] = field(default_factory=dict)
 
     @property
     def n_joints(self) -> int:
@@ -200,8 +209,12 @@ def _calibration(cam: Camera, model: str) -> gtsam.Cal3f | gtsam.Cal3_S2 | gtsam
 
 def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                           cfg: RefineConfig) -> None:
-    """Loose focal prior (30 %); in the distortion pass, priors on principal point and lens."""
+    """Loose focal prior (30 %); in the distortion pass, priors on principal point and lens;
+    known intrinsics held by a tight prior (1e-4 of the focal, 0.01 px)."""
     for c, cam in enumerate(prob.cameras):
+        if c in prob.fixed:
+            _hold_intrinsics(graph, c, cam, prob.model)
+            continue
         if prob.model == "f":
             graph.addPriorCal3f(K(c), _calibration(cam, "f"),
                                 gtsam.noiseModel.Isotropic.Sigma(1, 0.3 * cam.focal))
@@ -224,6 +237,23 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                         cfg.tangential_sigma, cfg.tangential_sigma])
         graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(centred, "ds2"),
                                            gtsam.noiseModel.Diagonal.Sigmas(sig)))
+
+
+def _hold_intrinsics(graph: gtsam.NonlinearFactorGraph, c: int, cam: Camera, model: str
+                     ) -> None:
+    """A prior that holds camera ``c`` at its (square-pixel, distortion-free) ``cam.K``."""
+    f = cam.focal
+    if model == "f":
+        graph.addPriorCal3f(K(c), _calibration(cam, "f"),
+                            gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * f))
+        return
+    sig = [1e-4 * f, 1e-4 * f, 1e-4, 1e-2, 1e-2]
+    if model == "s2":
+        graph.add(gtsam.PriorFactorCal3_S2(K(c), _calibration(cam, "s2"),
+                                           gtsam.noiseModel.Diagonal.Sigmas(np.array(sig))))
+        return
+    lens = gtsam.noiseModel.Diagonal.Sigmas(np.array(sig + [1e-6] * 4))
+    graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(cam, "ds2"), lens))
 
 
 def build_graph(prob: GraphProblem, cfg: RefineConfig) -> gtsam.NonlinearFactorGraph:
@@ -269,9 +299,24 @@ class SolveInfo:
     seconds: float
 
 
+def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig,
+               schur: bool) -> gtsam.NonlinearOptimizer:
+    params = gtsam.SfmLevenbergMarquardtParams() if schur else gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(cfg.max_iterations)
+    params.setRelativeErrorTol(cfg.relative_tolerance)
+    if schur:
+        params.setEliminationMode(gtsam.SfmEliminationMode.Schur)
+        return gtsam.SfmLevenbergMarquardtOptimizer(graph, values, params)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+
+
 def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig
              ) -> tuple[gtsam.Values, SolveInfo]:
     """Levenberg-Marquardt (with Schur elimination of the points when configured).
+
+    The Schur-complement optimiser can stop with an empty ``RuntimeError`` where plain LM goes
+    on (seen when an LM step puts a joint behind a camera); the solve is then repeated with
+    plain LM.
 
     Raises
     ------
@@ -281,18 +326,16 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     t0 = time.perf_counter()
     before = graph.error(values)
     try:
-        if cfg.schur:
-            params = gtsam.SfmLevenbergMarquardtParams()
-            params.setEliminationMode(gtsam.SfmEliminationMode.Schur)
-            params.setMaxIterations(cfg.max_iterations)
-            params.setRelativeErrorTol(cfg.relative_tolerance)
-            opt = gtsam.SfmLevenbergMarquardtOptimizer(graph, values, params)
-        else:
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(cfg.max_iterations)
-            params.setRelativeErrorTol(cfg.relative_tolerance)
-            opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        result = opt.optimize()
+        try:
+            opt = _optimizer(graph, values, cfg, cfg.schur)
+            result = opt.optimize()
+        except RuntimeError as exc:
+            if not cfg.schur:
+                raise
+            log.warning("Schur-complement solve failed (%s), solving with plain LM", exc or
+                        "no message")
+            opt = _optimizer(graph, values, cfg, False)
+            result = opt.optimize()
         iterations = opt.iterations()
     except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and friends
         raise RefinementFailed(f"bundle adjustment failed: {exc}") from exc
@@ -310,7 +353,8 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
     Returns
     -------
     cameras : list of Camera
-        With the refined pose and intrinsics (distortion only in the ``ds2`` model).
+        With the refined pose and intrinsics (distortion only in the ``ds2`` model); cameras
+        in ``prob.fixed`` keep their given K and distortion exactly.
     points : ndarray, shape (S, J, 3)
         NaN where the joint was not a variable.
     """
@@ -319,6 +363,10 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
         pose = values.atPose3(X(c))
         R = pose.rotation().matrix().T
         t = -R @ pose.translation()
+        if c in prob.fixed:  # exactly as given, not the prior-held values
+            known = prob.fixed[c]
+            cams.append(cam.with_(R=R, t=t, K=np.array(known.K), dist=np.array(known.dist)))
+            continue
         if prob.model == "f":
             cal = values.atCal3f(K(c))
             Kmat = np.array([[cal.fx(), 0, cal.px()], [0, cal.fx(), cal.py()], [0, 0, 1.0]])
