@@ -188,7 +188,7 @@ def main() -> None:
     if args.table in (None, "timing"):
         table_timing(args.lengths or ([250, 1000] if args.quick else [250, 500, 1000, 2000, 3000]))
     if args.table in (None, "distortion"):
-        table_distortion(seeds[:1] if args.quick else seeds[:2], tuple(args.modes))
+        table_distortion(seeds, tuple(args.modes))
 
 
 if __name__ == "__main__":

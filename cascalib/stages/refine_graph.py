@@ -223,20 +223,25 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         centred = cam.with_(K=np.array([[cam.focal, 0, (w - 1) / 2], [0, cam.focal, (h - 1) / 2],
                                         [0, 0, 1]]), dist=np.zeros(5))
         pp_sigma = cfg.principal_point_sigma * w
-        if prob.model == "s2":
-            # fx = fy up to 0.01 %, their mean loose, no skew: a Gaussian with correlated fx, fy
-            loose, tight = (0.3 * cam.focal) ** 2, (1e-4 * cam.focal) ** 2
-            cov = np.diag([0.0, 0.0, 1e-6, pp_sigma**2, pp_sigma**2])
-            cov[:2, :2] = 0.5 * (loose + tight) * np.eye(2) + 0.5 * (loose - tight) * (
-                np.ones((2, 2)) - np.eye(2))
-            graph.add(gtsam.PriorFactorCal3_S2(K(c), _calibration(centred, "s2"),
-                                               gtsam.noiseModel.Gaussian.Covariance(cov)))
-            continue
-        sig = np.array([0.3 * cam.focal, 0.3 * cam.focal, 1e-3, pp_sigma, pp_sigma,
-                        cfg.distortion_sigma, cfg.distortion_sigma,
-                        cfg.tangential_sigma, cfg.tangential_sigma])
-        graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(centred, "ds2"),
-                                           gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        if prob.model == "ds2":
+            # the lens pass holds the principal point where the previous pass put it: free, it
+            # trades against rotation and the lens terms (phones: focal and centres worse)
+            centred = cam.with_(K=np.array([[cam.focal, 0, cam.K[0, 2]],
+                                            [0, cam.focal, cam.K[1, 2]], [0, 0, 1]]))
+            pp_sigma = cfg.distortion_pp_sigma_px
+        # fx = fy up to 0.01 % (square pixels), their mean loose (30 %): a Gaussian with
+        # correlated fx, fy; no skew; the principal point around its prior centre
+        loose, tight = (0.3 * cam.focal) ** 2, (1e-4 * cam.focal) ** 2
+        var = [0.0, 0.0, 1e-6, pp_sigma**2, pp_sigma**2]
+        if prob.model == "ds2":
+            var += [cfg.distortion_sigma**2] * 2 + [cfg.tangential_sigma**2] * 2
+            centred = centred.with_(dist=np.zeros(5))
+        cov = np.diag(var)
+        cov[:2, :2] = 0.5 * (loose + tight) * np.eye(2) + 0.5 * (loose - tight) * (
+            np.ones((2, 2)) - np.eye(2))
+        prior = gtsam.PriorFactorCal3_S2 if prob.model == "s2" else gtsam.PriorFactorCal3DS2
+        graph.add(prior(K(c), _calibration(centred, prob.model),
+                        gtsam.noiseModel.Gaussian.Covariance(cov)))
 
 
 def _hold_intrinsics(graph: gtsam.NonlinearFactorGraph, c: int, cam: Camera, model: str
