@@ -87,11 +87,10 @@ class GraphProblem:
         spread of the initial residuals so they stay in the kernel's quadratic zone (graduated
         robustness; a Huber kernel far beyond its knee has no curvature to pull cameras back).
     fixed : dict of int to Camera
-        Cameras whose intrinsics are known, as given (K, distortion). Their ``obs`` are already
-        undistorted to the ideal square-pixel pinhole that ``cameras`` carries for them (one
-        calibration type for every camera: gtsam's Schur-complement optimiser refuses a mix);
-        every pass holds that pinhole by a tight prior, and :func:`unpack` returns the given
-        K and distortion exactly.
+        Cameras whose intrinsics are known, as given (only their K and distortion are used).
+        Their ``obs`` are already undistorted to the ideal square-pixel pinhole that ``cameras``
+        carries for them, which every pass's calibration model expresses exactly; a tight prior
+        holds it, and :func:`unpack` returns the given K and distortion exactly.
     """
 
     cameras: list[Camera]
@@ -223,11 +222,12 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         centred = cam.with_(K=np.array([[cam.focal, 0, (w - 1) / 2], [0, cam.focal, (h - 1) / 2],
                                         [0, 0, 1]]), dist=np.zeros(5))
         pp_sigma = cfg.principal_point_sigma * w
+        mean = centred
         if prob.model == "ds2":
             # the lens pass holds the principal point where the previous pass put it: free, it
             # trades against rotation and the lens terms (phones: focal and centres worse)
-            centred = cam.with_(K=np.array([[cam.focal, 0, cam.K[0, 2]],
-                                            [0, cam.focal, cam.K[1, 2]], [0, 0, 1]]))
+            mean = cam.with_(K=np.array([[cam.focal, 0, cam.K[0, 2]],
+                                         [0, cam.focal, cam.K[1, 2]], [0, 0, 1]]), dist=np.zeros(5))
             pp_sigma = cfg.distortion_pp_sigma_px
         # fx = fy up to 0.01 % (square pixels), their mean loose (30 %): a Gaussian with
         # correlated fx, fy; no skew; the principal point around its prior centre
@@ -235,12 +235,11 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         var = [0.0, 0.0, 1e-6, pp_sigma**2, pp_sigma**2]
         if prob.model == "ds2":
             var += [cfg.distortion_sigma**2] * 2 + [cfg.tangential_sigma**2] * 2
-            centred = centred.with_(dist=np.zeros(5))
         cov = np.diag(var)
         cov[:2, :2] = 0.5 * (loose + tight) * np.eye(2) + 0.5 * (loose - tight) * (
             np.ones((2, 2)) - np.eye(2))
         prior = gtsam.PriorFactorCal3_S2 if prob.model == "s2" else gtsam.PriorFactorCal3DS2
-        graph.add(prior(K(c), _calibration(centred, prob.model),
+        graph.add(prior(K(c), _calibration(mean, prob.model),
                         gtsam.noiseModel.Gaussian.Covariance(cov)))
 
 
@@ -320,8 +319,8 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     """Levenberg-Marquardt (with Schur elimination of the points when configured).
 
     The Schur-complement optimiser can stop with an empty ``RuntimeError`` where plain LM goes
-    on (seen when an LM step puts a joint behind a camera); the solve is then repeated with
-    plain LM.
+    on (seen on a simulated phone rig with known intrinsics; the cause inside gtsam is not
+    known); the solve is then repeated with plain LM.
 
     Raises
     ------
