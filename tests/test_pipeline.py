@@ -57,6 +57,18 @@ def test_progress_reports_every_stage_in_order(result):
         assert len(inner) >= 3, (stage, inner)
 
 
+def test_estimated_principal_points_carry_a_split_half_uncertainty(result):
+    for cam in result.calibration:
+        q = result.refinement.quality[cam.name]
+        centre = (np.array(cam.image_size) - 1) / 2
+        if np.allclose(cam.principal_point, centre):  # the pass was not kept
+            assert np.isnan(q.sigma_principal_point_px)
+        else:  # estimated: its split-half spread is part of the rotation uncertainty
+            assert 0 < q.sigma_principal_point_px < 30, q
+            pp_deg = np.degrees(np.arctan(q.sigma_principal_point_px / cam.focal))
+            assert q.sigma_rotation_deg >= pp_deg - 1e-9, q
+
+
 def test_result_keeps_every_stage_and_poses(result, scene):
     assert set(result.single_view) == set(scene.truth.names)
     assert result.alignment.calibration.names == result.calibration.names

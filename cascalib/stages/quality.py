@@ -8,6 +8,11 @@ The marginals describe the noise the model assumes, not the errors of the model 
 bias, body-model error): they are first scaled by the a-posteriori standard deviation of unit
 weight (the measured whitened residual spread, so a wrong ``sigma_px`` is corrected) and then by
 ``uncertainty_inflation``, calibrated on simulated rigs against the true errors.
+
+The principal point trades against the camera's rotation to first order (only the perspective
+across the image tells them apart), which the marginals of one solve understate. When it is
+estimated, its spread between the two halves of the recording (a split-half standard error)
+adds ``atan(se / f)`` to the rotation uncertainty.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ class CameraQuality:
     time_offset: float
     verdict: str
     reason: str
+    sigma_principal_point_px: float = float("nan")
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -109,7 +115,8 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
     errors_px : ndarray, shape (N,)
         Reprojection errors of all its associated observations (inf for points behind it).
     sigmas : dict
-        Marginal 1-sigma ``focal`` (px), ``rotation`` (deg), ``position`` (m).
+        Marginal 1-sigma ``focal`` (px), ``rotation`` (deg), ``position`` (m); optionally
+        ``principal_point`` (px, split-half standard error, not scaled), added to the rotation.
     scale : float
         Factor on the sigmas (unit-weight sigma times the configured inflation).
     cfg : RefineConfig
@@ -123,8 +130,13 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
              inlier_rate=float(inl.size / n) if n else 0.0,
              focal=sigmas["focal"] * scale, rotation=sigmas["rotation"] * scale,
              position=sigmas["position"] * scale)
+    pp = float(sigmas.get("principal_point", np.nan))
+    if np.isfinite(pp):
+        q["rotation"] = float(np.hypot(q["rotation"], np.degrees(np.arctan(pp / camera.focal))))
     q["focal_rel"] = q["focal"] / camera.focal
     verdict, reason = _verdict(q, n, cfg)
+    if np.isfinite(pp) and "rotation uncertainty" in reason:
+        reason += f" (principal point uncertain by {pp:.0f} px)"
     return CameraQuality(camera.name, n, q["median"], q["p90"], q["inlier_rate"], q["focal"],
                          q["focal_rel"], q["rotation"], q["position"], camera.time_offset,
-                         verdict, reason)
+                         verdict, reason, pp)

@@ -320,6 +320,30 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     return res + (prob,) if gain >= min_gain else None
 
 
+def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
+                           cfg: RefineConfig, kw: dict) -> NDArray[np.float64] | None:
+    """Split-half standard error (px) of each camera's principal point, shape (C,).
+
+    The principal-point pass is solved again on the selected person-frames of each half of the
+    recording (split at the median time, so slowly varying detector errors do not repeat in
+    both); half the distance between the two estimates is the standard error of one estimate
+    from all of them. Cameras of known intrinsics get 0; None if a half cannot be solved.
+    """
+    t = assoc.times[sel]
+    halves = [sel[t <= np.median(t)], sel[t > np.median(t)]]
+    pps = []
+    for half in halves:
+        prob = _make_problem(assoc.subset(half), cameras, cfg, model="s2", **kw)
+        prob.sigma_px = cfg.sigma_px
+        try:
+            cams = solve(prob, cfg)[0]
+        except RefinementFailed as exc:
+            log.info("split-half principal point unavailable: %s", exc)
+            return None
+        pps.append(np.array([c.K[:2, 2] for c in cams]))
+    return np.linalg.norm(pps[0] - pps[1], axis=1) / 2
+
+
 def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
             sigmas: list[dict[str, float]], cfg: RefineConfig) -> dict[str, CameraQuality]:
     """Per-camera quality from the reprojection errors (G, C, 26) of the final triangulation."""
@@ -470,16 +494,22 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
                             n_time_bins=cfg.n_time_bins, floor_cell_m=cfg.floor_cell_m,
                             image_grid=cfg.image_grid)
     passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
+    pp_se = None
     for model, mode, gain in passes:
         res = None if mode == "never" else _intrinsics_pass(
             assoc, sel, cameras, cfg, kw | {"targets": targets}, rng, model=model, mode=mode,
             min_gain=gain)
         if res is not None:
+            if model == "s2":  # from the same start as the pass
+                pp_se = principal_point_spread(assoc, sel, cameras, cfg,
+                                               kw | {"targets": targets})
             cameras, _, info, graph, values, prob = res
             solves.append(info)
             distortion = distortion or model == "ds2"
         step()
     sigmas = marginal_sigmas(graph, values, prob)
+    if pp_se is not None:
+        sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
     final, points, err = reconstruct(data, cameras, cfg, height)
     step()
     quality = _report(final, err, cameras, sigmas, cfg)

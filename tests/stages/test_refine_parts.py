@@ -151,6 +151,14 @@ def test_quality_verdicts():
     assert q.verdict == "failed" and "observations" in q.reason
     q = assess_camera(cam, e, good, 2 * cfg.max_sigma_rotation_deg / good["rotation"], cfg)
     assert q.verdict == "suspicious" and "rotation uncertainty" in q.reason
+    # an uncertain principal point adds its rotation (atan(se / f)) and is named in the reason
+    shaky = good | {"principal_point": np.tan(np.radians(1.5)) * cam.focal}
+    q = assess_camera(cam, e, shaky, 1.0, cfg)
+    assert q.sigma_rotation_deg == pytest.approx(np.hypot(0.02, 1.5), rel=1e-6)
+    assert q.verdict == "suspicious" and "principal point uncertain" in q.reason
+    assert q.sigma_principal_point_px == pytest.approx(shaky["principal_point"])
+    q = assess_camera(cam, e, good | {"principal_point": 0.5}, 1.0, cfg)
+    assert q.verdict == "accepted" and q.sigma_rotation_deg < 0.1
     sig = np.full(100000, 2.0)
     errs = np.linalg.norm(rng.normal(0, 3.0, (100000, 2)), axis=1)
     assert unit_weight_sigma(errs, sig) == pytest.approx(1.5, rel=0.02)
