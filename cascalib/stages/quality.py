@@ -88,8 +88,11 @@ def _verdict(q: dict[str, float], n_obs: int, cfg: RefineConfig) -> tuple[str, s
     if rate < cfg.min_inlier_rate:
         reasons.append(f"inlier rate {rate:.0%} < {cfg.min_inlier_rate:.0%}")
     if q["rotation"] > cfg.max_sigma_rotation_deg:
+        pp = q.get("principal_point", np.nan)
         reasons.append(f"rotation uncertainty {q['rotation']:.2f} deg > "
-                       f"{cfg.max_sigma_rotation_deg:g} deg")
+                       f"{cfg.max_sigma_rotation_deg:g} deg"
+                       + (f" (principal point uncertain by {pp:.0f} px)" if np.isfinite(pp)
+                          else ""))
     if q["position"] > cfg.max_sigma_position_m:
         reasons.append(f"position uncertainty {q['position']:.3f} m > "
                        f"{cfg.max_sigma_position_m:g} m")
@@ -130,13 +133,11 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
              inlier_rate=float(inl.size / n) if n else 0.0,
              focal=sigmas["focal"] * scale, rotation=sigmas["rotation"] * scale,
              position=sigmas["position"] * scale)
-    pp = float(sigmas.get("principal_point", np.nan))
+    pp = q["principal_point"] = float(sigmas.get("principal_point", np.nan))
     if np.isfinite(pp):
         q["rotation"] = float(np.hypot(q["rotation"], np.degrees(np.arctan(pp / camera.focal))))
     q["focal_rel"] = q["focal"] / camera.focal
     verdict, reason = _verdict(q, n, cfg)
-    if np.isfinite(pp) and "rotation uncertainty" in reason:
-        reason += f" (principal point uncertain by {pp:.0f} px)"
     return CameraQuality(camera.name, n, q["median"], q["p90"], q["inlier_rate"], q["focal"],
                          q["focal_rel"], q["rotation"], q["position"], camera.time_offset,
                          verdict, reason, pp)

@@ -156,6 +156,9 @@ def test_quality_verdicts():
     q = assess_camera(cam, e, shaky, 1.0, cfg)
     assert q.sigma_rotation_deg == pytest.approx(np.hypot(0.02, 1.5), rel=1e-6)
     assert q.verdict == "suspicious" and "principal point uncertain" in q.reason
+    # named with the rotation, not after whatever reason comes last
+    wide = assess_camera(cam, e, shaky | {"position": 10 * cfg.max_sigma_position_m}, 1.0, cfg)
+    assert "px); position uncertainty" in wide.reason, wide.reason
     assert q.sigma_principal_point_px == pytest.approx(shaky["principal_point"])
     q = assess_camera(cam, e, good | {"principal_point": 0.5}, 1.0, cfg)
     assert q.verdict == "accepted" and q.sigma_rotation_deg < 0.1
