@@ -495,14 +495,13 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
                             image_grid=cfg.image_grid)
     passes = [("s2", cfg.principal_point, -0.005), ("ds2", cfg.distortion, cfg.distortion_min_gain)]
     pp_se = None
+    pass_kw = kw | {"targets": targets}  # the last round's bone targets
     for model, mode, gain in passes:
         res = None if mode == "never" else _intrinsics_pass(
-            assoc, sel, cameras, cfg, kw | {"targets": targets}, rng, model=model, mode=mode,
-            min_gain=gain)
+            assoc, sel, cameras, cfg, pass_kw, rng, model=model, mode=mode, min_gain=gain)
         if res is not None:
             if model == "s2":  # from the same start as the pass
-                pp_se = principal_point_spread(assoc, sel, cameras, cfg,
-                                               kw | {"targets": targets})
+                pp_se = principal_point_spread(assoc, sel, cameras, cfg, pass_kw)
             cameras, _, info, graph, values, prob = res
             solves.append(info)
             distortion = distortion or model == "ds2"
