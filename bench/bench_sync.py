@@ -10,8 +10,13 @@ metric scale). Prints three tables:
    walking laps of a loop, 50 fps, offsets 0-200 frames) next to the paper's numbers;
 3. run time for 4 cameras x 3000 frames x 5 persons.
 
+With ``--refine``, table 1 also runs Stage V (the bundle adjustment with its sub-frame clock
+search) from each stage II-IV result and gives the offset errors after it: the issue's sub-frame
+target may be met "after this stage or after the bundle adjustment".
+
     python bench/bench_sync.py            # full (several minutes on 2 shared cores)
     python bench/bench_sync.py --quick    # one seed per scene
+    python bench/bench_sync.py --quick --only scenes --refine   # + Stage V (about 5 min more)
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from cascalib.camera import Camera  # noqa: E402
 from cascalib.metrics import compare_calibrations  # noqa: E402
 from cascalib.simulate import simulate  # noqa: E402
 from cascalib.stages.align import align_cameras  # noqa: E402
+from cascalib.stages.refine import refine  # noqa: E402
 from cascalib.tracks import Tracks  # noqa: E402
 
 # Paper, Table "Temporal synchronization experiments" (pred f columns: mean, median, std).
@@ -79,7 +85,8 @@ def cut_windows(tracks: list[Tracks], truth: Calibration, frac: float,
     return out_t, Calibration(out_c, reference_camera=truth.reference_camera)
 
 
-def run_scene(preset: str, seed: int, *, errors: bool) -> dict[str, object]:
+def run_scene(preset: str, seed: int, *, errors: bool, with_refine: bool = False
+              ) -> dict[str, object]:
     sc = simulate(preset, seed=seed, **{"timing.fps": (25.0, 30.0), "timing.fps_in_turn": True,
                                         "timing.drift_sd": 1e-4, "timing.max_offset_s": 1.0,
                                         "duration_s": 80.0})
@@ -96,7 +103,13 @@ def run_scene(preset: str, seed: int, *, errors: bool) -> dict[str, object]:
     serious = {"ambiguous", "inconsistent", "not_aligned"}
     bad = [r for r in rows if abs(r.time_offset_error_frames) >= 0.5]
     bad_flagged = sum(bool(serious & set(res.flags[r.camera])) for r in bad)
-    return {"off": [abs(r.time_offset_error_frames) for r in rows],
+    off_v: list[float] = []
+    if with_refine:  # Stage V from this result, default settings
+        refined = refine(tracks, res.calibration, height=1.70, rng=seed).calibration
+        off_v = [abs(r.time_offset_error_frames)
+                 for r in compare_calibrations(refined, truth, ground=True).cameras
+                 if r.camera != truth.reference_camera]
+    return {"off": [abs(r.time_offset_error_frames) for r in rows], "off_v": off_v,
             "bad": len(bad), "bad_flagged": bad_flagged,
             "rate": [abs(r.time_rate_error_pct) for r in rows],
             "rot": [r.rotation_error_deg for r in rows],
@@ -105,19 +118,20 @@ def run_scene(preset: str, seed: int, *, errors: bool) -> dict[str, object]:
             "flags": sum(bool(serious & set(f)) for f in res.flags.values())}
 
 
-def table_scenes(seeds: list[int]) -> None:
+def table_scenes(seeds: list[int], with_refine: bool = False) -> None:
     print("\n## 1. Simulator scenes: offsets up to +-50 % of the sequence, 25/30 fps in turn, "
           "drift 1e-4 s.d.; stage-I errors: focal 3 %, tilt 1 deg, scale 5 %")
     print(f"{'scene':10s} {'I-err':5s} {'cams':>4s} {'frames':>6s} {'max|off|/L':>10s} "
           f"{'int ok':>7s} {'off med':>7s} {'off max':>7s} {'rate max%':>9s} {'rot max':>7s} "
-          f"{'pos max':>7s} {'flags':>5s} {'bad flagged':>11s} {'time s':>6s}")
-    total, exact = 0, 0
+          f"{'pos max':>7s} {'flags':>5s} {'bad flagged':>11s} {'time s':>6s}"
+          + (f" | {'V int ok':>8s} {'V off med':>9s} {'V off max':>9s}" if with_refine else ""))
+    total, exact, total_v, exact_v = 0, 0, 0, 0
     for preset in ("terrace", "lab_ring", "crowd", "periodic"):
         for errors in (False, True):
-            acc: dict[str, list[float]] = {k: [] for k in ("off", "rate", "rot", "pos")}
+            acc: dict[str, list[float]] = {k: [] for k in ("off", "off_v", "rate", "rot", "pos")}
             span, tsum, frames, flags, bad, bad_flagged = 0.0, 0.0, 0, 0, 0, 0
             for seed in seeds:
-                r = run_scene(preset, seed, errors=errors)
+                r = run_scene(preset, seed, errors=errors, with_refine=with_refine)
                 for k in acc:
                     acc[k] += r[k]  # type: ignore[operator]
                 span = max(span, r["span"])  # type: ignore[call-overload]
@@ -132,10 +146,21 @@ def table_scenes(seeds: list[int]) -> None:
             print(f"{preset:10s} {'yes' if errors else 'no':5s} {off.size:4d} {frames:6d} "
                   f"{span:10.2f} {ok:3d}/{off.size:<3d} {np.median(off):7.3f} {off.max():7.3f} "
                   f"{max(acc['rate']):9.4f} {max(acc['rot']):7.2f} {max(acc['pos']):7.3f} "
-                  f"{flags:5d} {bad_flagged:5d}/{bad:<5d} {tsum / len(seeds):6.2f}")
+                  f"{flags:5d} {bad_flagged:5d}/{bad:<5d} {tsum / len(seeds):6.2f}", end="")
+            if with_refine:
+                off_v = np.array(acc["off_v"])
+                ok_v = int((off_v < 0.5).sum())
+                total_v, exact_v = total_v + off_v.size, exact_v + ok_v
+                print(f" | {ok_v:4d}/{off_v.size:<3d} {np.median(off_v):9.3f} {off_v.max():9.3f}",
+                      end="")
+            print()
     print(f"integer part exact (|error| < 0.5 frame): {exact}/{total} = {100 * exact / total:.1f} %"
           " of non-reference cameras; flags = cameras flagged ambiguous/inconsistent/not aligned;"
           " bad flagged = wrong cameras (|error| >= 0.5) that carry such a flag")
+    if with_refine:
+        print(f"after Stage V (V columns): integer part exact {exact_v}/{total_v} = "
+              f"{100 * exact_v / total_v:.1f} %; V off = |offset error| (frames) after the "
+              "bundle adjustment's sub-frame search")
 
 
 def table_paper(n_subjects: int) -> None:
@@ -180,10 +205,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="one seed per scene, 3 subjects")
     ap.add_argument("--only", choices=("scenes", "paper", "time"), default=None)
+    ap.add_argument("--refine", action="store_true",
+                    help="table 1 also runs Stage V and gives the offset errors after it")
     args = ap.parse_args()
     seeds = [0] if args.quick else [0, 1, 2]
     if args.only in (None, "scenes"):
-        table_scenes(seeds)
+        table_scenes(seeds, args.refine)
     if args.only in (None, "paper"):
         table_paper(3 if args.quick else 7)
     if args.only in (None, "time"):
