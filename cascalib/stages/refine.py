@@ -361,10 +361,9 @@ def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
     return quality
 
 
-def _check_times(data: SessionData, cfg: RefineConfig, rng: np.random.Generator
-                 ) -> SessionData:
+def _check_times(data: SessionData, cfg: RefineConfig) -> SessionData:
     """``cfg.time_check_frames`` reference times spread over the recording, each moved by a
-    random fraction of a frame in [-0.5, 0.5).
+    fraction of a frame in [-0.5, 0.5).
 
     Why the jitter: a detection interpolated between two frames averages their noise, so it
     lies closer to the truth than a detection at a frame. At whole reference frames every group
@@ -376,7 +375,10 @@ def _check_times(data: SessionData, cfg: RefineConfig, rng: np.random.Generator
     step = max(1, len(data.times) // cfg.time_check_frames)
     times = data.times[::step]
     lo, hi = data.times[0], data.times[-1]
-    return replace(data, times=np.clip(times + rng.uniform(-0.5, 0.5, times.size), lo, hi))
+    # a low-discrepancy sequence (golden-ratio steps): evenly spread fractions even for a few
+    # dozen times, where random ones would leave the cost at the mercy of the draw
+    frac = np.mod(np.arange(times.size) * 0.6180339887498949, 1.0) - 0.5
+    return replace(data, times=np.clip(times + frac, lo, hi))
 
 
 def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
@@ -401,7 +403,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
     """
-    data = _check_times(data, cfg, rng)  # the same times for every cost compared
+    data = _check_times(data, cfg)  # the same times for every cost compared
     cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
     for _ in range(cfg.time_iterations):
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
