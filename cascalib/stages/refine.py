@@ -365,7 +365,7 @@ def _check_times(data: SessionData, cfg: RefineConfig) -> SessionData:
     """``cfg.time_check_frames`` reference times spread over the recording, each moved by a
     fraction of a frame in [-0.5, 0.5).
 
-    Why the jitter: a detection interpolated between two frames averages their noise, so it
+    Why the fractions: a detection interpolated between two frames averages their noise, so it
     lies closer to the truth than a detection at a frame. At whole reference frames every group
     sits at the same fraction of a camera's frame, and that fraction moves with the offset being
     searched: the search then prefers offsets that put the camera half-way between its frames

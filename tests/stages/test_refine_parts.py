@@ -139,7 +139,7 @@ def test_clock_search_is_not_pulled_between_frames():
     """With the true geometry and noisy detections the sub-frame search stays at the truth.
 
     Interpolating a detection between two frames averages their noise; at whole reference
-    frames that once pulled the clocks 0.43-0.50 frame off the truth here (now 0.06 at most).
+    frames that once pulled the clocks 0.43-0.50 frame off the truth here (now 0.05 at most).
     """
     from cascalib.stages.refine import refine_clocks
     noisy = make_scene(n_frames=200, n_persons=3, noise_px=3.0, seed=0,
