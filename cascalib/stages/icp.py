@@ -170,22 +170,54 @@ class IcpResult:
                  ) -> float:
         """Sum of ``exp(-d^2 / 2 sigma^2)`` over the matches.
 
-        With the lanes, identities must persist: each tracklet of A counts only its matches
-        to its single best tracklet of B. People walking the same circle coincide now and then
-        at a wrong offset, but not for the length of a tracklet.
+        With the lanes, identities must persist: a tracklet of A may stand for several
+        tracklets of B only when those never exist at the same time (one person whose track
+        broke), and the other way round. People walking the same circle coincide now and then
+        at a wrong offset, each time with another person, but never for the length of a
+        tracklet. Tracklet pairs are accepted greedily by their summed weight.
         """
         w = np.exp(-0.5 * (self.distances / sigma) ** 2)
         if la is None or lb is None:
             return float(w.sum())
         ta = la.tid[self.frames_a, self.lanes_a]
         tb = lb.tid[self.frames_b, self.lanes_b]
-        key = ta.astype(np.int64) * (int(tb.max(initial=0)) + 2) + (tb + 1)
-        uk, inv = np.unique(key, return_inverse=True)
+        nb = int(tb.max(initial=0)) + 2
+        uk, inv = np.unique(ta.astype(np.int64) * nb + (tb + 1), return_inverse=True)
         per_pair = np.bincount(inv.ravel(), weights=w, minlength=uk.size)
-        best: dict[int, float] = {}
-        for k, v in zip(uk // (int(tb.max(initial=0)) + 2), per_pair, strict=True):
-            best[int(k)] = max(best.get(int(k), 0.0), float(v))
-        return float(sum(best.values()))
+        span_a, span_b = _spans(la), _spans(lb)
+        taken_a: dict[int, list[tuple[int, int]]] = {}  # A tracklet -> spans of its B partners
+        taken_b: dict[int, list[tuple[int, int]]] = {}
+        total = 0.0
+        for k in np.argsort(per_pair)[::-1]:
+            a, b = int(uk[k] // nb), int(uk[k] % nb) - 1
+            sa, sb = span_a[a], span_b[b]
+            if _clash(sb, taken_a.get(a, [])) or _clash(sa, taken_b.get(b, [])):
+                continue
+            taken_a.setdefault(a, []).append(sb)
+            taken_b.setdefault(b, []).append(sa)
+            total += float(per_pair[k])
+        return total
+
+
+def _spans(lanes: Lanes) -> dict[int, tuple[int, int]]:
+    """First and last grid frame of every tracklet in the lanes."""
+    g, k = np.nonzero(lanes.tid >= 0)
+    t = lanes.tid[g, k]
+    order = np.argsort(t, kind="stable")
+    t, g = t[order], g[order]
+    first = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
+    last = np.r_[first[1:] - 1, t.size - 1]
+    return {int(t[i]): (int(g[i]), int(g[j])) for i, j in zip(first, last, strict=True)}
+
+
+def _clash(span: tuple[int, int], others: list[tuple[int, int]], share: float = 0.2) -> bool:
+    """Does ``span`` overlap any of ``others`` by more than ``share`` of the shorter one
+    (trackers overlap broken pieces of one person by a few frames)?"""
+    for o in others:
+        common = min(span[1], o[1]) - max(span[0], o[0]) + 1
+        if common > share * (1 + min(span[1] - span[0], o[1] - o[0])):
+            return True
+    return False
 
 
 def _overlap_frames(la: Lanes, lb: Lanes, offset: int, max_frames: int
