@@ -29,70 +29,21 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "stages"))
-from align_scene import make_scene, plane_camera  # noqa: E402
+from align_scene import make_scene, simulated_windows, stage1_like  # noqa: E402
 
-from cascalib.calibration import Calibration  # noqa: E402
-from cascalib.camera import Camera  # noqa: E402
 from cascalib.metrics import compare_calibrations  # noqa: E402
 from cascalib.simulate import simulate  # noqa: E402
 from cascalib.stages.align import align_cameras  # noqa: E402
 from cascalib.stages.refine import refine  # noqa: E402
-from cascalib.tracks import Tracks  # noqa: E402
 
 # Paper, Table "Temporal synchronization experiments" (pred f columns: mean, median, std).
 PAPER = {0: (2.90, 2.5, 14.05), 50: (52.81, 52.5, 14.12), 100: (102.67, 102, 14.22),
          150: (153.48, 153, 15.04), 200: (189.26, 201, 51.70)}
 
 
-def _rx(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def stage1_like(cam: Camera, rng: np.random.Generator, *, errors: bool) -> Camera:
-    """The true camera in its own plane frame, with stage-I-like errors when asked:
-    focal 3 %, tilt 1 deg, metric scale 5 % (1 s.d.)."""
-    scale = 1.0 + (rng.normal(0, 0.05) if errors else 0.0)
-    pc = plane_camera(cam, scale, rng.uniform(0, 2 * np.pi), rng.uniform(-5, 5, 2))
-    if not errors:
-        return pc
-    K = pc.K.copy()
-    K[:2, :2] *= 1.0 + rng.normal(0, 0.03)
-    R = _rx(np.radians(rng.normal(0, 1.0))) @ pc.R
-    return pc.with_(K=K, R=R, t=-R @ pc.center)
-
-
-def cut_windows(tracks: list[Tracks], truth: Calibration, frac: float,
-                rng: np.random.Generator) -> tuple[list[Tracks], Calibration]:
-    """Cut every camera to ``frac`` of the reference's length with start times spread so that
-    offsets to the reference span +-50 % of the window."""
-    cams = truth.cameras
-    n_ref = tracks[0].n_frames
-    L = int(frac * n_ref)  # window length in reference frames
-    w_ref = (n_ref - L) // 2
-    out_t, out_c = [], []
-    for tr, cam in zip(tracks, cams, strict=True):
-        lo = max(0.0, w_ref - 0.5 * L, cam.time_offset)
-        hi = min(w_ref + 0.5 * L, cam.time_offset + cam.time_rate * tr.n_frames - L)
-        w = w_ref if cam.name == truth.reference_camera else rng.uniform(lo, max(lo, hi))
-        k0 = int(np.ceil((w - cam.time_offset) / cam.time_rate))
-        n = int(L / cam.time_rate)
-        sl = slice(k0, k0 + n)
-        out_t.append(tr.with_(keypoints=tr.keypoints[sl],
-                              track_ids=None if tr.track_ids is None else tr.track_ids[sl],
-                              timestamps=None if tr.timestamps is None else tr.timestamps[sl]))
-        out_c.append(cam.with_(time_offset=cam.time_rate * k0 + cam.time_offset - w_ref))
-    return out_t, Calibration(out_c, reference_camera=truth.reference_camera)
-
-
 def run_scene(preset: str, seed: int, *, errors: bool, with_refine: bool = False
               ) -> dict[str, object]:
-    sc = simulate(preset, seed=seed, **{"timing.fps": (25.0, 30.0), "timing.fps_in_turn": True,
-                                        "timing.drift_sd": 1e-4, "timing.max_offset_s": 1.0,
-                                        "duration_s": 80.0})
-    rng = np.random.default_rng(seed)
-    tracks, truth = cut_windows(sc.tracks, sc.truth, 0.45, rng)
-    plane = [stage1_like(c, rng, errors=errors) for c in truth.cameras]
+    tracks, truth, plane = simulated_windows(preset, seed, errors=errors)
     t0 = time.perf_counter()
     res = align_cameras(tracks, plane, rng=seed)
     dt = time.perf_counter() - t0

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,7 @@ from cascalib.camera import Camera
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
+from cascalib.stages.consensus import CandidateEdge, vote_cameras
 from cascalib.stages.ground import GroundTracks, ground_trajectories
 from cascalib.stages.icp import (
     IcpResult,
@@ -54,7 +55,11 @@ class PairAlignment:
 
     Grid times are reference frames under the fps prior: ``u_a = rate * u_b + offset``.
     ``icp_scores`` holds the ICP evidence of each candidate of ``curve`` (same order);
-    ``ambiguity`` = second-best over best evidence; ``accepted``: kept by the global solve.
+    ``ambiguity`` = second-best over best evidence; ``accepted``: kept by the global solve;
+    ``icp_angles``: each candidate's rotation after ICP (rad); ``evidence_sigma``: the residual
+    scale (m) of its evidence. A pair refitted at the offset chosen by the camera vote
+    (:mod:`~cascalib.stages.consensus`) has ``chosen = -1`` unless a candidate lies there,
+    and the vote's ambiguity.
     """
 
     i: int
@@ -65,6 +70,8 @@ class PairAlignment:
     fit: SyncFit | None
     ambiguity: float
     accepted: bool = False
+    icp_angles: list[float] = field(default_factory=list)
+    evidence_sigma: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -166,20 +173,41 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     if not any(_plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
         results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
-    scores = _evidence(results, cfg, lanes[i], lanes[j])
+    scores = _evidence(results, cfg, lanes[i], lanes[j], fps_ref)
     for k in np.argsort(scores)[::-1][:3]:
         r = results[k]
         if r is not None and scores[k] >= 0.5 * max(scores):
             results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
-    scores = _evidence(results, cfg, lanes[i], lanes[j])
+    sig = _evidence_sigma(results, cfg)
+    scores = [_score(r, sig, lanes[i], lanes[j], cfg.evidence_seconds * fps_ref)
+              for r in results]
+    angles = [r.transform.angle if r is not None else c.angle
+              for r, c in zip(results, curve.candidates, strict=True)]
     if not scores or max(scores) <= 0:
-        return PairAlignment(i, j, curve, scores, -1, None, 1.0)
+        return PairAlignment(i, j, curve, scores, -1, None, 1.0, icp_angles=angles,
+                             evidence_sigma=sig)
     k = int(np.argmax(scores))
     rest = sorted(scores, reverse=True)
     ambiguity = rest[1] / rest[0] if len(rest) > 1 else curve.peak_ratio
     best = results[k]
     assert best is not None
-    offset = int(round(curve.candidates[k].offset))
+    fit = _refine_pair(i, j, int(round(curve.candidates[k].offset)), best, fine, lanes, noise,
+                       fps_ref, cfg, sr, rng)
+    if fit is None:
+        return PairAlignment(i, j, curve, scores, -1, None, 1.0, icp_angles=angles,
+                             evidence_sigma=sig)
+    logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
+                fine[i].camera, fine[j].camera, fit.offset, fit.rate,
+                np.degrees(fit.transform.angle), fit.rms, ambiguity)
+    return PairAlignment(i, j, curve, scores, k, fit, float(ambiguity), icp_angles=angles,
+                         evidence_sigma=sig)
+
+
+def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: list[GridTrack],
+                 lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+                 fps_ref: float, cfg: AlignConfig, sr: float, rng: np.random.Generator
+                 ) -> SyncFit | None:
+    """Sub-frame offset, rate and similarity from the ICP match at an integer offset."""
     kw = dict(sigma=cfg.refine_sigma, estimate_rate=cfg.estimate_rate, scale_range=sr,
               margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref), noise_a=noise[i],
               noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd, corr_frames=0.5 * fps_ref)
@@ -195,12 +223,7 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
             break
         best = moved
         fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)
-    if fit is None:
-        return PairAlignment(i, j, curve, scores, -1, None, 1.0)
-    logger.info("pair %s-%s: offset %.2f rate %.5f angle %.1f deg rms %.3f m ambiguity %.2f",
-                fine[i].camera, fine[j].camera, fit.offset, fit.rate,
-                np.degrees(fit.transform.angle), fit.rms, ambiguity)
-    return PairAlignment(i, j, curve, scores, k, fit, float(ambiguity))
+    return fit
 
 
 def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
@@ -211,18 +234,31 @@ def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: Ali
                     max_frames=frames, n_iter=8 if quick else 15)
 
 
-def _evidence(results: list[IcpResult | None], cfg: AlignConfig, la: Lanes, lb: Lanes
-              ) -> list[float]:
-    """ICP evidence of each candidate at the noise level of the best one (one lap of a loop
-    off fits to a few decimetres, the true offset to the detection noise), with identities
-    kept along tracklets."""
+def _evidence(results: list[IcpResult | None], cfg: AlignConfig, la: Lanes, lb: Lanes,
+              fps_ref: float) -> list[float]:
+    """ICP evidence of each candidate at the noise level of the best one."""
+    sig = _evidence_sigma(results, cfg)
+    return [_score(r, sig, la, lb, cfg.evidence_seconds * fps_ref) for r in results]
+
+
+def _evidence_sigma(results: list[IcpResult | None], cfg: AlignConfig) -> float:
+    """Residual scale of a pair's evidence: the best candidate's RMS (one lap of a loop off
+    fits to a few decimetres, the true offset to the detection noise)."""
     rms = [r.rms for r in results if _plausible(r, cfg)]
-    sig = max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
-    # evidence per frame compared (so quick, subsampled and full runs are comparable) times
-    # sqrt(overlap): quality first, but a long overlap that fits counts more than a short
-    # lucky one
-    return [r.evidence(sig, la, lb) / max(1, r.n_frames) * np.sqrt(r.n_overlap / 100.0)
-            if r is not None else 0.0 for r in results]
+    return max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
+
+
+def _score(r: IcpResult | None, sig: float, la: Lanes, lb: Lanes, full: float) -> float:
+    """Evidence per frame compared (so quick, subsampled and full runs are comparable) times
+    sqrt(overlap / full), capped at 1: quality first, and a short overlap counts less (a brief
+    coincidence is likely). Past ``full`` frames length stops counting: a periodic scene's
+    coincidence one lap off lasts as long as the overlap, like the truth, so only the quality
+    of the fit tells them apart. Identities are kept along tracklets
+    (:meth:`IcpResult.evidence`)."""
+    if r is None:
+        return 0.0
+    return (r.evidence(sig, la, lb) / max(1, r.n_frames)
+            * np.sqrt(min(1.0, r.n_overlap / max(full, 1.0))))
 
 
 def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:
@@ -269,6 +305,92 @@ def _global_time(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
     idx = [k for k, p in enumerate(pairs) if p.fit is not None]
     accepted[idx] = ok
     return a, b, accepted
+
+
+def _global(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig, sr: float
+            ) -> tuple[list[PairAlignment], NDArray[np.float64], NDArray[np.float64],
+                       list[Similarity2D | None]]:
+    """Global clocks, the pairs marked accepted or not, and the ground transforms."""
+    a, b, accepted = _global_time(n, ref, pairs, cfg)
+    pairs = [replace(p, accepted=bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]
+    T = _global_space(n, ref, [p for p in pairs if p.accepted], sr)
+    return pairs, a, b, T
+
+
+def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
+          T: list[Similarity2D | None], lanes: list[Lanes], fine: list[GridTrack],
+          noise: list[tuple[NDArray[np.float64], float]], fps_ref: float, cfg: AlignConfig,
+          sr: float, rng: np.random.Generator) -> list[PairAlignment] | None:
+    """Move cameras to the clock and heading that all their pairs support best
+    (:func:`~cascalib.stages.consensus.vote_cameras`) and refit those cameras' pairs there.
+    None when no camera moves."""
+    by_ij = {(p.i, p.j): p for p in pairs}
+    edges = [CandidateEdge(p.i, p.j, [c.offset for c in p.curve.candidates], p.icp_angles,
+                           p.icp_scores) for p in pairs if len(p.icp_angles) == len(p.icp_scores)]
+    cache: dict[tuple[int, int, int, int, bool], float] = {}
+
+    def score(i: int, j: int, offset: float, angle: float, full: bool) -> float:
+        o = int(round(offset))
+        key = (i, j, o, int(round(np.degrees(angle) / 5.0)) % 72, full)
+        if key not in cache:
+            r = _icp(i, j, o, angle, lanes, cfg, sr, quick=not full)
+            cache[key] = _score(r, by_ij[(i, j)].evidence_sigma, lanes[i], lanes[j],
+                                cfg.evidence_seconds * fps_ref)
+        return cache[key]
+
+    settled: dict[tuple[int, int, int], tuple[float, float] | None] = {}
+
+    def settle(i: int, j: int, offset: float, angle: float) -> tuple[float, float] | None:
+        o = int(round(offset))
+        if (i, j, o) not in settled:
+            r = _icp(i, j, o, angle, lanes, cfg, sr, quick=True)
+            fit = None if r is None else _refine_pair(i, j, o, r, fine, lanes, noise, fps_ref,
+                                                       cfg, sr, rng)
+            settled[(i, j, o)] = None if fit is None else (fit.offset, fit.transform.angle)
+        return settled[(i, j, o)]
+
+    placed = np.array([t is not None for t in T])
+    yaw = np.array([t.angle if t is not None else 0.0 for t in T])
+    votes = vote_cameras(n, ref, edges, b, yaw, placed, score, settle,
+                         movable=_doubtful(n, ref, pairs, placed, cfg),
+                         tolerance=cfg.offset_tolerance)
+    moved = {v.camera: v for v in votes if v.moved}
+    if not moved:
+        return None
+    state_b, state_yaw = b.copy(), yaw.copy()
+    for v in votes:
+        state_b[v.camera], state_yaw[v.camera] = v.b, v.yaw
+    out = []
+    for p in pairs:
+        if p.i not in moved and p.j not in moved:
+            out.append(p)
+            continue
+        offset = int(round(state_b[p.j] - state_b[p.i]))
+        logger.info("camera vote: pair %s-%s refitted at offset %d", fine[p.i].camera,
+                    fine[p.j].camera, offset)
+        best = _icp(p.i, p.j, offset, float(state_yaw[p.j] - state_yaw[p.i]), lanes, cfg, sr)
+        fit = None if best is None else _refine_pair(p.i, p.j, offset, best, fine, lanes,
+                                                      noise, fps_ref, cfg, sr, rng)
+        near = [k for k, c in enumerate(p.curve.candidates)
+                if abs(c.offset - offset) <= cfg.offset_tolerance]
+        amb = max(moved[c].ambiguity for c in (p.i, p.j) if c in moved)
+        out.append(replace(p, chosen=near[0] if near else -1, fit=fit, ambiguity=amb))
+    return out
+
+
+def _doubtful(n: int, ref: int, pairs: list[PairAlignment], placed: NDArray[np.bool_],
+              cfg: AlignConfig) -> NDArray[np.bool_]:
+    """Cameras worth a vote: not placed, with a pair that disagrees with the global clocks,
+    or whose every agreeing pair is ambiguous."""
+    out = ~placed
+    for c in range(n):
+        inc = [p for p in pairs if c in (p.i, p.j) and p.fit is not None]
+        acc = [p for p in inc if p.accepted]
+        if len(acc) < len(inc) or min((p.ambiguity for p in acc), default=1.0) > \
+                cfg.ambiguity_ratio:
+            out[c] = True
+    out[ref] = False
+    return out
 
 
 def _spanning_init(n: int, ref: int, pairs: list[PairAlignment]) -> list[Similarity2D | None]:
@@ -396,12 +518,12 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                              range(len(ij))):
             pairs.append(pair)
             report(0.2 + 0.75 * len(pairs) / len(ij))
-    a, b, accepted = _global_time(n, ref, pairs, cfg)
-    pairs = [PairAlignment(p.i, p.j, p.curve, p.icp_scores, p.chosen, p.fit, p.ambiguity,
-                           bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]
-    good = [p for p in pairs if p.accepted]
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
-    T = _global_space(n, ref, good, sr)
+    pairs, a, b, T = _global(n, ref, pairs, cfg, sr)
+    if cfg.camera_vote and n > 2:
+        revised = _vote(n, ref, pairs, b, T, lanes, fine, noise, fps_ref, cfg, sr, rng)
+        if revised is not None:
+            pairs, a, b, T = _global(n, ref, revised, cfg, sr)
     if all(T[c] is None for c in range(n) if c != ref):
         raise EstimationFailed("no camera could be synchronised and aligned with the "
                                "reference: the cameras may not see the same people, or too "

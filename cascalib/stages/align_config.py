@@ -84,6 +84,14 @@ class AlignConfig(BaseModel):
     offset_tolerance: float = Field(
         2.0, gt=0, description="Pairs whose offset disagrees with the globally consistent "
         "solution by more than this (frames) are rejected (cycle consistency).")
+    evidence_seconds: float = Field(
+        10.0, gt=0, description="Overlap (s) past which a candidate's ICP evidence no longer "
+        "grows with the overlap's length (shorter overlaps count sqrt(overlap / this)).")
+    camera_vote: bool = Field(
+        True, description="After the pairwise sync, move each camera to the clock offset and "
+        "heading that the ICP evidence summed over all of its pairs supports best (any "
+        "pair's candidates are tried); periodic motion makes every pair of a camera show the "
+        "same wrong peak, which outvotes the right pair in the pairwise consensus.")
     ambiguity_ratio: float = Field(
         0.8, gt=0, le=1, description="A pair whose second-best candidate scores above this "
         "fraction of the best is flagged ambiguous.")

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cascalib.calibration import Calibration
 from cascalib.camera import Camera, look_at
 from cascalib.geometry import rot_z
 from cascalib.tracks import Tracks
@@ -151,3 +152,59 @@ def make_scene(*, n_cams: int = 3, n_persons: int = 3, n_ref_frames: int = 900,
         plane.append(plane_camera(cam, s, yaw, shift))
         pfw.append((s, yaw, shift))
     return AlignScene(tracks, truth, plane, pfw)
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def stage1_like(cam: Camera, rng: np.random.Generator, *, errors: bool) -> Camera:
+    """The true camera in its own plane frame, with stage-I-like errors when asked:
+    focal 3 %, tilt 1 deg, metric scale 5 % (1 s.d.)."""
+    scale = 1.0 + (rng.normal(0, 0.05) if errors else 0.0)
+    pc = plane_camera(cam, scale, rng.uniform(0, 2 * np.pi), rng.uniform(-5, 5, 2))
+    if not errors:
+        return pc
+    K = pc.K.copy()
+    K[:2, :2] *= 1.0 + rng.normal(0, 0.03)
+    R = _rx(np.radians(rng.normal(0, 1.0))) @ pc.R
+    return pc.with_(K=K, R=R, t=-R @ pc.center)
+
+
+def cut_windows(tracks: list[Tracks], truth: Calibration, frac: float,
+                rng: np.random.Generator) -> tuple[list[Tracks], Calibration]:
+    """Cut every camera to ``frac`` of the reference's length with start times spread so that
+    offsets to the reference span +-50 % of the window."""
+    cams = truth.cameras
+    n_ref = tracks[0].n_frames
+    L = int(frac * n_ref)  # window length in reference frames
+    w_ref = (n_ref - L) // 2
+    out_t, out_c = [], []
+    for tr, cam in zip(tracks, cams, strict=True):
+        lo = max(0.0, w_ref - 0.5 * L, cam.time_offset)
+        hi = min(w_ref + 0.5 * L, cam.time_offset + cam.time_rate * tr.n_frames - L)
+        w = w_ref if cam.name == truth.reference_camera else rng.uniform(lo, max(lo, hi))
+        k0 = int(np.ceil((w - cam.time_offset) / cam.time_rate))
+        n = int(L / cam.time_rate)
+        sl = slice(k0, k0 + n)
+        out_t.append(tr.with_(keypoints=tr.keypoints[sl],
+                              track_ids=None if tr.track_ids is None else tr.track_ids[sl],
+                              timestamps=None if tr.timestamps is None else tr.timestamps[sl]))
+        out_c.append(cam.with_(time_offset=cam.time_rate * k0 + cam.time_offset - w_ref))
+    return out_t, Calibration(out_c, reference_camera=truth.reference_camera)
+
+
+def simulated_windows(preset: str, seed: int, *, errors: bool
+                      ) -> tuple[list[Tracks], Calibration, list[Camera]]:
+    """The stage II-IV benchmark's scene: an 80 s simulator preset at 25/30 fps in turn with
+    clock drift, cut to windows of 45 % whose offsets span +-50 %; returns the tracks, the
+    true calibration of the windows and stage-I-like plane cameras."""
+    from cascalib.simulate import simulate  # the simulator is only needed here
+
+    sc = simulate(preset, seed=seed, **{"timing.fps": (25.0, 30.0), "timing.fps_in_turn": True,
+                                        "timing.drift_sd": 1e-4, "timing.max_offset_s": 1.0,
+                                        "duration_s": 80.0})
+    rng = np.random.default_rng(seed)
+    tracks, truth = cut_windows(sc.tracks, sc.truth, 0.45, rng)
+    return tracks, truth, [stage1_like(c, rng, errors=errors) for c in truth.cameras]
