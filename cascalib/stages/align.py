@@ -10,7 +10,12 @@
 3. globally consistent clocks from all pairs (robust L1 over the pair graph, so that one wrong
    pair is outvoted by the cycles through the other cameras) and globally consistent ground
    alignments (robust least squares over every accepted pair's matched points);
-4. each camera moved from its own plane frame into the reference camera's.
+4. the camera vote (:mod:`~cascalib.stages.consensus`): each doubtful camera (a rejected pair,
+   only ambiguous pairs, or not placed) moves to the clock and heading that the ICP evidence
+   summed over all of its pairs supports best, trying every candidate of every pair; its pairs
+   are refitted there and step 3 runs again. Periodic walking needs it: the lap-off peak is a
+   property of the scene, so two pairs of a camera can agree on it and outvote the right one;
+5. each camera moved from its own plane frame into the reference camera's.
 """
 
 from __future__ import annotations
