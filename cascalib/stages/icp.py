@@ -478,9 +478,15 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
             if not rate_free:
                 J = J.copy()
                 J[:, 1] = resid_rate_column(sol.x)[np.r_[np.repeat(inl, 2), True]]
+            # a rigid fit pins the scale at its bound: it has no variance (and its zero
+            # column can make the normal matrix singular)
+            free = np.arange(6) if scale_range > 1.0 else np.arange(5)
+            Jf = J[:, free]
             # residuals are correlated over the smoothing and, through the gait, over about
             # half a second: inflate the covariance by that many samples
-            cov = np.linalg.inv(J.T @ J) * chi**2 * max(1.0, corr_frames)
+            cov = np.zeros((6, 6))
+            cov[np.ix_(free, free)] = (np.linalg.inv(Jf.T @ Jf) * chi**2
+                                       * max(1.0, corr_frames))
         except np.linalg.LinAlgError:
             cov = np.full((6, 6), np.inf)
         return sol, inl, cov
