@@ -344,21 +344,26 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
         return cache[key]
 
     settled: dict[tuple[int, int, int], tuple[float, float] | None] = {}
+    base = int(rng.integers(2**32))  # one stream per settled candidate: threads keep results
 
     def settle(i: int, j: int, offset: float, angle: float) -> tuple[float, float] | None:
         o = int(round(offset))
         if (i, j, o) not in settled:
             r = _icp(i, j, o, angle, lanes, cfg, sr, quick=True)
-            fit = None if r is None else _refine_pair(i, j, o, r, fine, lanes, noise, fps_ref,
-                                                       cfg, sr, rng)
+            fit = None if r is None else _refine_pair(
+                i, j, o, r, fine, lanes, noise, fps_ref, cfg, sr,
+                np.random.default_rng([base, i, j, o + 2**20]))
             settled[(i, j, o)] = None if fit is None else (fit.offset, fit.transform.angle)
         return settled[(i, j, o)]
 
     placed = np.array([t is not None for t in T])
     yaw = np.array([t.angle if t is not None else 0.0 for t in T])
-    votes = vote_cameras(n, ref, edges, b, yaw, placed, score, settle,
-                         movable=_doubtful(n, ref, pairs, placed, cfg),
-                         tolerance=cfg.offset_tolerance)
+    # ICP spends its time in numpy, which releases the GIL: hypotheses are scored in threads
+    # (the caches may then compute an entry twice, never wrongly)
+    with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
+        votes = vote_cameras(n, ref, edges, b, yaw, placed, score, settle,
+                             movable=_doubtful(n, ref, pairs, placed, cfg),
+                             tolerance=cfg.offset_tolerance, mapper=pool.map)
     moved = {v.camera: v for v in votes if v.moved}
     if not moved:
         return None

@@ -16,8 +16,10 @@ The scoring (ICP on the ground tracks) is passed in, so this module stays free o
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,25 +61,26 @@ class CameraVote:
 
 def _hypotheses(c: int, edges: list[CandidateEdge], b: NDArray[np.float64],
                 yaw: NDArray[np.float64], placed: NDArray[np.bool_], keep: float,
-                settle: Callable[[int, int, float, float], tuple[float, float] | None]
-                ) -> list[tuple[float, float]]:
+                settle: Callable[[int, int, float, float], tuple[float, float] | None],
+                mapper: Callable[..., Iterable[Any]]) -> list[tuple[float, float]]:
     """Clock offset and heading of camera ``c`` implied by the stronger candidates of its pairs
     (``b_j - b_i = offset``, ``yaw_j - yaw_i = angle``), each settled on its own pair first
     (a coarse peak a few frames off scores far below the truth), the current state first."""
     out = [(float(b[c]), float(yaw[c]))] if placed[c] else []
+    tries = []
     for e in edges:
         other = e.j if e.i == c else e.i
         if c not in (e.i, e.j) or not placed[other] or not e.scores:
             continue
         top = max(e.scores)
-        for off, ang, s in zip(e.offsets, e.angles, e.scores, strict=True):
-            if s < keep * top:
-                continue
-            fit = settle(e.i, e.j, off, ang)
-            if fit is None:
-                continue
-            sign = 1.0 if c == e.j else -1.0
-            out.append((float(b[other] + sign * fit[0]), float(yaw[other] + sign * fit[1])))
+        tries += [(e, other, off, ang) for off, ang, s in
+                  zip(e.offsets, e.angles, e.scores, strict=True) if s >= keep * top]
+    fits = mapper(lambda t: settle(t[0].i, t[0].j, t[2], t[3]), tries)
+    for (e, other, _, _), fit in zip(tries, fits, strict=True):
+        if fit is None:
+            continue
+        sign = 1.0 if c == e.j else -1.0
+        out.append((float(b[other] + sign * fit[0]), float(yaw[other] + sign * fit[1])))
     return out
 
 
@@ -86,7 +89,8 @@ def vote_cameras(n: int, ref: int, edges: list[CandidateEdge], b: NDArray[np.flo
                  score: Callable[[int, int, float, float, bool], float],
                  settle: Callable[[int, int, float, float], tuple[float, float] | None], *,
                  movable: NDArray[np.bool_] | None = None, tolerance: float = 2.0,
-                 keep: float = 0.5, n_full: int = 3, n_sweeps: int = 2) -> list[CameraVote]:
+                 keep: float = 0.5, n_full: int = 3, n_sweeps: int = 2,
+                 mapper: Callable[..., Iterable[Any]] = map) -> list[CameraVote]:
     """Coordinate ascent over cameras on the summed pair evidence.
 
     Parameters
@@ -115,6 +119,9 @@ def vote_cameras(n: int, ref: int, edges: list[CandidateEdge], b: NDArray[np.flo
         At most this many hypotheses per camera are scored in full.
     n_sweeps : int
         Passes over the cameras; the vote stops early when no camera moves.
+    mapper : callable
+        ``map``-like; e.g. a thread pool's ``map`` to score hypotheses in parallel (the scores
+        must then be thread-safe).
 
     Returns
     -------
@@ -129,18 +136,19 @@ def vote_cameras(n: int, ref: int, edges: list[CandidateEdge], b: NDArray[np.flo
         for c in range(n):
             if c == ref or (movable is not None and not movable[c]):
                 continue
-            hyps = _hypotheses(c, edges, b, yaw, placed, keep, settle)
+            hyps = _hypotheses(c, edges, b, yaw, placed, keep, settle, mapper)
             if not hyps:
                 continue
-            scored = [(_total(c, bc, yc, edges, b, yaw, placed, score, False), bc, yc)
-                      for bc, yc in _distinct(hyps, tolerance)]
+            quick = partial(_scored, c, edges, b, yaw, placed, score, False)
+            thorough = partial(_scored, c, edges, b, yaw, placed, score, True)
+            scored = list(mapper(quick, _distinct(hyps, tolerance)))
             # the quick scores screen; the strongest few (at least two, so that the runner-up
             # is measured alike) are scored in full and only those compete
             scored.sort(key=lambda t: -t[0])
             top = scored[0][0]
-            scored = [(_total(c, bc, yc, edges, b, yaw, placed, score, True), bc, yc)
-                      for k, (s, bc, yc) in enumerate(scored)
-                      if k < 2 or (s >= keep * top and k < n_full)]
+            scored = list(mapper(thorough,
+                                 [(bc, yc) for k, (s, bc, yc) in enumerate(scored)
+                                  if k < 2 or (s >= keep * top and k < n_full)]))
             logger.debug("camera %d: hypotheses %s", c,
                          ", ".join(f"{bc:.1f}/{np.degrees(yc):.0f}deg:{s:.2f}"
                                    for s, bc, yc in scored))
@@ -171,6 +179,13 @@ def _total(c: int, bc: float, yc: float, edges: list[CandidateEdge], b: NDArray[
         yi, yj = (yc, yaw[e.j]) if e.i == c else (yaw[e.i], yc)
         total += score(e.i, e.j, float(bj - bi), float(yj - yi), full)
     return total
+
+
+def _scored(c: int, edges: list[CandidateEdge], b: NDArray[np.float64], yaw: NDArray[np.float64],
+            placed: NDArray[np.bool_], score: Callable[[int, int, float, float, bool], float],
+            full: bool, h: tuple[float, float]) -> tuple[float, float, float]:
+    """``(summed evidence, clock, heading)`` of hypothesis ``h`` of camera ``c``."""
+    return _total(c, h[0], h[1], edges, b, yaw, placed, score, full), h[0], h[1]
 
 
 def _distinct(hyps: list[tuple[float, float]], tolerance: float) -> list[tuple[float, float]]:
