@@ -178,14 +178,14 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     if not any(_plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
         results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
-    scores = _evidence(results, cfg, lanes[i], lanes[j], fps_ref)
+    full = cfg.evidence_seconds * fps_ref
+    scores = _evidence(results, _evidence_sigma(results, cfg), lanes[i], lanes[j], full)
     for k in np.argsort(scores)[::-1][:3]:
         r = results[k]
         if r is not None and scores[k] >= 0.5 * max(scores):
             results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
     sig = _evidence_sigma(results, cfg)
-    scores = [_score(r, sig, lanes[i], lanes[j], cfg.evidence_seconds * fps_ref)
-              for r in results]
+    scores = _evidence(results, sig, lanes[i], lanes[j], full)
     angles = [r.transform.angle if r is not None else c.angle
               for r, c in zip(results, curve.candidates, strict=True)]
     if not scores or max(scores) <= 0:
@@ -239,11 +239,10 @@ def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: Ali
                     max_frames=frames, n_iter=8 if quick else 15)
 
 
-def _evidence(results: list[IcpResult | None], cfg: AlignConfig, la: Lanes, lb: Lanes,
-              fps_ref: float) -> list[float]:
-    """ICP evidence of each candidate at the noise level of the best one."""
-    sig = _evidence_sigma(results, cfg)
-    return [_score(r, sig, la, lb, cfg.evidence_seconds * fps_ref) for r in results]
+def _evidence(results: list[IcpResult | None], sig: float, la: Lanes, lb: Lanes, full: float
+              ) -> list[float]:
+    """ICP evidence (:func:`_score`) of each candidate at residual scale ``sig``."""
+    return [_score(r, sig, la, lb, full) for r in results]
 
 
 def _evidence_sigma(results: list[IcpResult | None], cfg: AlignConfig) -> float:
