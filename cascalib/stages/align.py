@@ -231,6 +231,16 @@ def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: list[GridTr
     return fit
 
 
+def _fit_at(i: int, j: int, offset: int, angle: float, fine: list[GridTrack],
+            lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]], fps_ref: float,
+            cfg: AlignConfig, sr: float, rng: np.random.Generator, quick: bool = False
+            ) -> SyncFit | None:
+    """ICP at an integer offset from a rotation, then the sub-frame fit (None if either fails)."""
+    best = _icp(i, j, offset, angle, lanes, cfg, sr, quick=quick)
+    return None if best is None else _refine_pair(i, j, offset, best, fine, lanes, noise,
+                                                  fps_ref, cfg, sr, rng)
+
+
 def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
          sr: float, quick: bool = False) -> IcpResult | None:
     frames = cfg.icp_max_frames // 4 if quick else cfg.icp_max_frames
@@ -348,10 +358,8 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
     def settle(i: int, j: int, offset: float, angle: float) -> tuple[float, float] | None:
         o = int(round(offset))
         if (i, j, o) not in settled:
-            r = _icp(i, j, o, angle, lanes, cfg, sr, quick=True)
-            fit = None if r is None else _refine_pair(
-                i, j, o, r, fine, lanes, noise, fps_ref, cfg, sr,
-                np.random.default_rng([base, i, j, o + 2**20]))
+            fit = _fit_at(i, j, o, angle, fine, lanes, noise, fps_ref, cfg, sr,
+                          np.random.default_rng([base, i, j, o + 2**20]), quick=True)
             settled[(i, j, o)] = None if fit is None else (fit.offset, fit.transform.angle)
         return settled[(i, j, o)]
 
@@ -377,9 +385,8 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
         offset = int(round(state_b[p.j] - state_b[p.i]))
         logger.info("camera vote: pair %s-%s refitted at offset %d", fine[p.i].camera,
                     fine[p.j].camera, offset)
-        best = _icp(p.i, p.j, offset, float(state_yaw[p.j] - state_yaw[p.i]), lanes, cfg, sr)
-        fit = None if best is None else _refine_pair(p.i, p.j, offset, best, fine, lanes,
-                                                      noise, fps_ref, cfg, sr, rng)
+        fit = _fit_at(p.i, p.j, offset, float(state_yaw[p.j] - state_yaw[p.i]), fine, lanes,
+                      noise, fps_ref, cfg, sr, rng)
         near = [k for k, c in enumerate(p.curve.candidates)
                 if abs(c.offset - offset) <= cfg.offset_tolerance]
         amb = max(moved[c].ambiguity for c in (p.i, p.j) if c in moved)

@@ -68,9 +68,8 @@ def _hypotheses(c: int, edges: list[CandidateEdge], b: NDArray[np.float64],
     (a coarse peak a few frames off scores far below the truth), the current state first."""
     out = [(float(b[c]), float(yaw[c]))] if placed[c] else []
     tries = []
-    for e in edges:
-        other = e.j if e.i == c else e.i
-        if c not in (e.i, e.j) or not placed[other] or not e.scores:
+    for e, other in _pairs_of(c, edges, placed):
+        if not e.scores:
             continue
         top = max(e.scores)
         tries += [(e, other, off, ang) for off, ang, s in
@@ -166,26 +165,29 @@ def vote_cameras(n: int, ref: int, edges: list[CandidateEdge], b: NDArray[np.flo
     return [votes[c] for c in sorted(votes)]
 
 
-def _total(c: int, bc: float, yc: float, edges: list[CandidateEdge], b: NDArray[np.float64],
-           yaw: NDArray[np.float64], placed: NDArray[np.bool_],
-           score: Callable[[int, int, float, float, bool], float], full: bool) -> float:
-    """Evidence of camera ``c`` at clock ``bc`` and heading ``yc`` summed over its pairs."""
-    total = 0.0
+def _pairs_of(c: int, edges: list[CandidateEdge], placed: NDArray[np.bool_]
+              ) -> list[tuple[CandidateEdge, int]]:
+    """The pairs of camera ``c`` whose other camera is placed, with that camera."""
+    out = []
     for e in edges:
         other = e.j if e.i == c else e.i
-        if c not in (e.i, e.j) or not placed[other]:
-            continue
-        bi, bj = (bc, b[e.j]) if e.i == c else (b[e.i], bc)
-        yi, yj = (yc, yaw[e.j]) if e.i == c else (yaw[e.i], yc)
-        total += score(e.i, e.j, float(bj - bi), float(yj - yi), full)
-    return total
+        if c in (e.i, e.j) and placed[other]:
+            out.append((e, other))
+    return out
 
 
 def _scored(c: int, edges: list[CandidateEdge], b: NDArray[np.float64], yaw: NDArray[np.float64],
             placed: NDArray[np.bool_], score: Callable[[int, int, float, float, bool], float],
             full: bool, h: tuple[float, float]) -> tuple[float, float, float]:
-    """``(summed evidence, clock, heading)`` of hypothesis ``h`` of camera ``c``."""
-    return _total(c, h[0], h[1], edges, b, yaw, placed, score, full), h[0], h[1]
+    """``(evidence summed over its pairs, clock, heading)`` of hypothesis ``h`` of camera
+    ``c``."""
+    bc, yc = h
+    total = 0.0
+    for e, _ in _pairs_of(c, edges, placed):
+        bi, bj = (bc, b[e.j]) if e.i == c else (b[e.i], bc)
+        yi, yj = (yc, yaw[e.j]) if e.i == c else (yaw[e.i], yc)
+        total += score(e.i, e.j, float(bj - bi), float(yj - yi), full)
+    return total, bc, yc
 
 
 def _distinct(hyps: list[tuple[float, float]], tolerance: float) -> list[tuple[float, float]]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,6 +70,18 @@ class Lanes:
 
     pos: NDArray[np.float64]
     tid: NDArray[np.int64]
+
+    @cached_property
+    def spans(self) -> dict[int, tuple[int, int]]:
+        """First and last grid frame of every tracklet (computed once: every candidate's
+        evidence needs them)."""
+        g, k = np.nonzero(self.tid >= 0)
+        t = self.tid[g, k]
+        order = np.argsort(t, kind="stable")
+        t, g = t[order], g[order]
+        first = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
+        last = np.r_[first[1:] - 1, t.size - 1]
+        return {int(t[i]): (int(g[i]), int(g[j])) for i, j in zip(first, last, strict=True)}
 
 
 def dense_lanes(track: GridTrack) -> Lanes:
@@ -184,7 +197,7 @@ class IcpResult:
         nb = int(tb.max(initial=0)) + 2
         uk, inv = np.unique(ta.astype(np.int64) * nb + (tb + 1), return_inverse=True)
         per_pair = np.bincount(inv.ravel(), weights=w, minlength=uk.size)
-        span_a, span_b = _spans(la), _spans(lb)
+        span_a, span_b = la.spans, lb.spans
         taken_a: dict[int, list[tuple[int, int]]] = {}  # A tracklet -> spans of its B partners
         taken_b: dict[int, list[tuple[int, int]]] = {}
         total = 0.0
@@ -197,17 +210,6 @@ class IcpResult:
             taken_b.setdefault(b, []).append(sa)
             total += float(per_pair[k])
         return total
-
-
-def _spans(lanes: Lanes) -> dict[int, tuple[int, int]]:
-    """First and last grid frame of every tracklet in the lanes."""
-    g, k = np.nonzero(lanes.tid >= 0)
-    t = lanes.tid[g, k]
-    order = np.argsort(t, kind="stable")
-    t, g = t[order], g[order]
-    first = np.flatnonzero(np.r_[True, t[1:] != t[:-1]])
-    last = np.r_[first[1:] - 1, t.size - 1]
-    return {int(t[i]): (int(g[i]), int(g[j])) for i, j in zip(first, last, strict=True)}
 
 
 def _clash(span: tuple[int, int], others: list[tuple[int, int]], share: float = 0.2) -> bool:
