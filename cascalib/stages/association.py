@@ -420,7 +420,11 @@ def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0
     next_id = 0
     last_pos: dict[int, tuple[float, NDArray[np.float64]]] = {}
     for t, idx in zip(uniq, groups, strict=True):
-        live = [k for k, (tl, _) in last_pos.items() if t - tl <= max_gap]
+        # tracks silent for longer than max_gap can never be linked again: forget them, so
+        # each time looks only at the few live tracks (not at every track ever started)
+        for k in [k for k, (tl, _) in last_pos.items() if t - tl > max_gap]:
+            del last_pos[k]
+        live = list(last_pos)
         if live:
             prev = np.array([last_pos[k][1] for k in live])
             cost = np.linalg.norm(assoc.ground[idx, None] - prev[None], axis=-1)
