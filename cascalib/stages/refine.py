@@ -303,7 +303,8 @@ def _pass_config(cfg: RefineConfig, model: str) -> RefineConfig:
 
 def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                      cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
-                     mode: str, min_gain: float):  # noqa: ANN202
+                     mode: str, min_gain: float, fitted: NDArray[np.int64] | None = None
+                     ):  # noqa: ANN202
     """A pass with more intrinsics free (with priors); kept if held-out frames agree.
 
     ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
@@ -318,7 +319,10 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
         return None
     if mode == "always":
         return res + (prob,)
-    rest = np.setdiff1d(np.arange(assoc.n_groups), sel)
+    # held out: person-frames that neither this pass nor the solves behind ``cameras`` saw, or
+    # the cameras it is compared with would be judged on their own data
+    rest = np.setdiff1d(np.arange(assoc.n_groups), sel if fitted is None else
+                        np.union1d(sel, fitted))
     if rest.size == 0:
         return None
     held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
@@ -529,7 +533,10 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         step()
     distortion, n_selected = False, sel.size
 
-    def groups(n: int) -> NDArray[np.int64]:  # the last round's selection when the budget is its
+    def groups(n: int) -> NDArray[np.int64]:
+        # a pass larger than the rounds' graph leaves a fifth of the person-frames out, for the
+        # held-out check of mode "auto"; at the rounds' size, the last round's selection
+        n = min(n, max(cfg.max_groups, 4 * assoc.n_groups // 5))
         if n == cfg.max_groups:
             return sel
         return select_groups(assoc, data.sizes, n, joints, n_time_bins=cfg.n_time_bins,
@@ -537,11 +544,13 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
 
     passes = [("s2", cfg.principal_point, -0.005, groups(cfg.intrinsics_groups)),
               ("ds2", cfg.distortion, cfg.distortion_min_gain, groups(cfg.distortion_groups))]
-    pp_se = None
+    pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
     pass_kw = kw | {"targets": targets}  # the last round's bone targets
     for model, mode, gain, chosen in passes:
         res = None if mode == "never" else _intrinsics_pass(
-            assoc, chosen, cameras, cfg, pass_kw, rng, model=model, mode=mode, min_gain=gain)
+            assoc, chosen, cameras, cfg, pass_kw, rng, model=model, mode=mode, min_gain=gain,
+            fitted=fitted)
+        fitted = np.union1d(fitted, chosen)
         if res is not None:
             if model == "s2":  # from the same start as the pass
                 pp_se = principal_point_spread(assoc, chosen, cameras, cfg, pass_kw,
