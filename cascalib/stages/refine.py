@@ -22,6 +22,7 @@ import logging
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
@@ -301,6 +302,32 @@ def _pass_config(cfg: RefineConfig, model: str) -> RefineConfig:
                                                         cfg.principal_point_iterations)})
 
 
+def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[int, int]],
+                joints: NDArray[np.int64], cfg: RefineConfig, n: int) -> NDArray[np.int64]:
+    """Person-frames of an intrinsics pass of budget ``n``: the last round's selection ``sel``
+    at the rounds' size, else a new selection that leaves at least a fifth of the groups out
+    (for the held-out check of mode "auto")."""
+    n = min(n, max(cfg.max_groups, 4 * assoc.n_groups // 5))
+    if n == cfg.max_groups:
+        return sel
+    return select_groups(assoc, sizes, n, joints, n_time_bins=cfg.n_time_bins,
+                         floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+
+
+def _rounds_size_graph(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
+                       cfg: RefineConfig, kw: dict, model: str
+                       ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, GraphProblem]:
+    """The graph of the rounds' person-frames ``sel`` at the final ``cameras``, for marginals.
+
+    ``uncertainty_inflation`` is calibrated on graphs of that size. A larger pass shrinks the
+    marginals by the square root of its size, while the principal point's error (its trade-off
+    with the rotation, settled by the priors more than by the images) falls far less.
+    """
+    prob = _make_problem(assoc.subset(sel), cameras, cfg, model=model, **kw)
+    prob.sigma_px = cfg.sigma_px
+    return build_graph(prob, cfg), initial_values(prob), prob
+
+
 def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                      cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
                      mode: str, min_gain: float, fitted: NDArray[np.int64] | None = None
@@ -532,18 +559,10 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
         step()
     distortion, n_selected = False, sel.size
-
-    def groups(n: int) -> NDArray[np.int64]:
-        # a pass larger than the rounds' graph leaves a fifth of the person-frames out, for the
-        # held-out check of mode "auto"; at the rounds' size, the last round's selection
-        n = min(n, max(cfg.max_groups, 4 * assoc.n_groups // 5))
-        if n == cfg.max_groups:
-            return sel
-        return select_groups(assoc, data.sizes, n, joints, n_time_bins=cfg.n_time_bins,
-                             floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
-
-    passes = [("s2", cfg.principal_point, -0.005, groups(cfg.intrinsics_groups)),
-              ("ds2", cfg.distortion, cfg.distortion_min_gain, groups(cfg.distortion_groups))]
+    passes = [(model, mode, gain, _pass_groups(assoc, sel, data.sizes, joints, cfg, n))
+              for model, mode, gain, n in (
+                  ("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
+                  ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups))]
     pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
     pass_kw = kw | {"targets": targets}  # the last round's bone targets
     for model, mode, gain, chosen in passes:
@@ -561,13 +580,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             n_selected = chosen.size
         step()
     if prob.obs.shape[0] > cfg.max_groups:
-        # the marginals of a graph of the rounds' size, at the final cameras: uncertainty_inflation
-        # is calibrated on graphs of that size, and the extra person-frames of a larger pass
-        # shrink the marginals by their square root while the principal point's error (its
-        # trade-off with the rotation, settled by priors more than by data) falls far less
-        prob = _make_problem(assoc.subset(sel), cameras, cfg, model=prob.model, **pass_kw)
-        prob.sigma_px = cfg.sigma_px
-        graph, values = build_graph(prob, cfg), initial_values(prob)
+        graph, values, prob = _rounds_size_graph(assoc, sel, cameras, cfg, pass_kw, prob.model)
     sigmas = marginal_sigmas(graph, values, prob)
     if pp_se is not None:
         sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]

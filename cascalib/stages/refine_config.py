@@ -48,7 +48,7 @@ class RefineConfig(BaseModel):
         "image tells them apart, and on a ring of cameras hardly at all), so it needs more data "
         "than the pose. Measured on 9 simulated 40 s scenes (terrace, lab ring, periodic; seeds "
         "0-2), mean / max relative rotation: 240 -> 0.69 / 3.52 deg, 1200 -> 0.55 / 2.33, "
-        "2400 -> 0.48 / 1.39 (Stage V +4 s on 4 cameras x 3000 frames x 5 persons).")
+        "2400 -> 0.48 / 1.39, but 2400 adds 4 s to Stage V on 4 cameras x 3000 frames x 5 persons.")
     distortion_groups: int = Field(
         240, ge=10, description="Person-frames of the lens-distortion pass (its principal point "
         "is held where the principal-point pass put it).")
