@@ -120,6 +120,33 @@ def test_frame_selection_spreads_over_time():
     assert 0.3 < late < 0.7  # half the time span, half the picks (by quality alone: none)
 
 
+def test_intrinsics_pass_groups_leave_held_out_frames():
+    from cascalib.stages.refine import _pass_groups
+
+    rng = np.random.default_rng(1)
+
+    def assoc_of(n: int) -> Association:
+        obs = np.full((n, 2, 26, 3), np.nan)
+        obs[..., :2] = rng.uniform(0, 1000, (n, 2, 26, 2))
+        obs[..., 2] = 0.9
+        return Association(np.arange(n) * 0.5, obs, np.zeros(n, dtype=np.int64),
+                           rng.uniform(0, 5, (n, 2)))
+
+    cfg = RefineConfig(max_groups=50, intrinsics_groups=1200)
+    sizes, joints = [(1000, 1000)] * 2, np.arange(26)
+    rounds = np.arange(0, 400, 8)  # stands for the last round's 50 picks
+    small = assoc_of(1000)
+    sel = _pass_groups(small, rounds, sizes, joints, cfg, cfg.intrinsics_groups)
+    # 1200 asked of 1000: a fifth stays out for the held-out check
+    assert len(sel) == 800 and len(np.unique(sel)) == 800
+    big = assoc_of(3000)
+    assert len(_pass_groups(big, rounds, sizes, joints, cfg, cfg.intrinsics_groups)) == 1200
+    # at the rounds' size: the rounds' own selection, not a new one
+    assert _pass_groups(big, rounds, sizes, joints, cfg, cfg.max_groups) is rounds
+    tiny = assoc_of(55)  # too few to leave a fifth out above the rounds' size
+    assert _pass_groups(tiny, rounds, sizes, joints, cfg, cfg.intrinsics_groups) is rounds
+
+
 def test_time_offsets_recovered(scene):
     noisy = make_scene(n_frames=60, n_persons=3, noise_px=0.5, offsets=(0, 0.3, -0.4, 0.2),
                        seed=2)
