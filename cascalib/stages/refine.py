@@ -314,6 +314,15 @@ def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[i
                          floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
 
 
+def _refined_problem(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
+                     cfg: RefineConfig, kw: dict, model: str) -> GraphProblem:
+    """The problem of the person-frames ``sel`` from already refined ``cameras``: its noise
+    level starts at ``cfg.sigma_px`` (no graduation)."""
+    prob = _make_problem(assoc.subset(sel), cameras, cfg, model=model, **kw)
+    prob.sigma_px = cfg.sigma_px
+    return prob
+
+
 def _rounds_size_graph(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                        cfg: RefineConfig, kw: dict, model: str
                        ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, GraphProblem]:
@@ -323,8 +332,7 @@ def _rounds_size_graph(assoc: Association, sel: NDArray[np.int64], cameras: list
     marginals by the square root of its size, while the principal point's error (its trade-off
     with the rotation, settled by the priors more than by the images) falls far less.
     """
-    prob = _make_problem(assoc.subset(sel), cameras, cfg, model=model, **kw)
-    prob.sigma_px = cfg.sigma_px
+    prob = _refined_problem(assoc, sel, cameras, cfg, kw, model)
     return build_graph(prob, cfg), initial_values(prob), prob
 
 
@@ -337,8 +345,7 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
     person-frames (not in the graph) drops by at least ``min_gain`` (relative; may be negative).
     """
-    prob = _make_problem(assoc.subset(sel), cameras, cfg, model=model, **kw)
-    prob.sigma_px = cfg.sigma_px  # the cameras are already refined: no graduation
+    prob = _refined_problem(assoc, sel, cameras, cfg, kw, model)
     try:
         res = solve(prob, _pass_config(cfg, model))
     except RefinementFailed as exc:
@@ -384,8 +391,7 @@ def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: 
     t = assoc.times[order]
     pps = []
     for part in (order[t <= np.median(t)], order[t > np.median(t)]):
-        prob = _make_problem(assoc.subset(np.sort(part)), cameras, cfg, model="s2", **kw)
-        prob.sigma_px = cfg.sigma_px
+        prob = _refined_problem(assoc, np.sort(part), cameras, cfg, kw, "s2")
         try:
             cams = solve(prob, _pass_config(cfg, "s2"))[0]
         except RefinementFailed as exc:
