@@ -338,8 +338,7 @@ def _rounds_size_graph(assoc: Association, sel: NDArray[np.int64], cameras: list
 
 def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                      cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
-                     mode: str, min_gain: float, fitted: NDArray[np.int64] | None = None
-                     ):  # noqa: ANN202
+                     mode: str, min_gain: float, fitted: NDArray[np.int64]):  # noqa: ANN202
     """A pass with more intrinsics free (with priors); kept if held-out frames agree.
 
     ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
@@ -355,8 +354,7 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
         return res + (prob,)
     # held out: person-frames that neither this pass nor the solves behind ``cameras`` saw, or
     # the cameras it is compared with would be judged on their own data
-    rest = np.setdiff1d(np.arange(assoc.n_groups), sel if fitted is None else
-                        np.union1d(sel, fitted))
+    rest = np.setdiff1d(np.arange(assoc.n_groups), np.union1d(sel, fitted))
     if rest.size == 0:
         return None
     held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
@@ -565,17 +563,17 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
         step()
     distortion, n_selected = False, sel.size
-    passes = [(model, mode, gain, _pass_groups(assoc, sel, data.sizes, joints, cfg, n))
-              for model, mode, gain, n in (
-                  ("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
-                  ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups))]
+    passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
+              ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups)]
     pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
     pass_kw = kw | {"targets": targets}  # the last round's bone targets
-    for model, mode, gain, chosen in passes:
-        res = None if mode == "never" else _intrinsics_pass(
-            assoc, chosen, cameras, cfg, pass_kw, rng, model=model, mode=mode, min_gain=gain,
-            fitted=fitted)
-        fitted = np.union1d(fitted, chosen)
+    for model, mode, gain, budget in passes:
+        res = None
+        if mode != "never":  # a skipped pass selects nothing
+            chosen = _pass_groups(assoc, sel, data.sizes, joints, cfg, budget)
+            res = _intrinsics_pass(assoc, chosen, cameras, cfg, pass_kw, rng, model=model,
+                                   mode=mode, min_gain=gain, fitted=fitted)
+            fitted = np.union1d(fitted, chosen)
         if res is not None:
             if model == "s2":  # from the same start as the pass
                 pp_se = principal_point_spread(assoc, chosen, cameras, cfg, pass_kw,
