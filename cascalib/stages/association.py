@@ -104,7 +104,7 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     """
     n_f, n_p = keypoints.shape[:2]
     links = np.full((n_f, n_p), -1, dtype=np.int64)
-    if n_f < 2:
+    if n_f < 2 or n_p == 0:
         return links
     a, b = keypoints[:-1, :, None, :, :2], keypoints[1:, None, :, :, :2]
     with np.errstate(invalid="ignore"), _quiet():
@@ -112,11 +112,12 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
         ext = np.nanmax(keypoints[..., :2], axis=2) - np.nanmin(keypoints[..., :2], axis=2)
         size = np.linalg.norm(ext, axis=-1)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
-    for k in range(n_f - 1):
+    rows_ok = np.isfinite(cost).any(2)
+    best, solved = _row_minima_assignment(cost, rows_ok)
+    c_best = np.take_along_axis(cost, best[..., None], -1)[..., 0]
+    links[:-1] = np.where(solved[:, None] & rows_ok & (c_best < gate), best, -1)
+    for k in np.flatnonzero(~solved & rows_ok.any(1)):  # two persons want one slot: Hungarian
         c = cost[k]
-        rows_ok = np.isfinite(c).any(1)
-        if not rows_ok.any():
-            continue
         r, q = linear_sum_assignment(np.where(np.isfinite(c), c, 1e9))
         good = c[r, q] < gate
         links[k, r[good]] = q[good]
@@ -206,62 +207,107 @@ def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: floa
     return np.where(np.isfinite(g_ank), g_ank, g_hip)
 
 
-def _cluster_time(grounds: list[NDArray[np.float64]], gate: float) -> NDArray[np.int64]:
-    """Cluster the persons of all cameras at one time.
+def _row_minima_assignment(cost: NDArray[np.float64], rows: NDArray[np.bool_]
+                           ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Optimal assignment of many small problems at once, where it is just the row minima.
+
+    When the rows' cheapest columns are all different, taking them is an optimal assignment
+    (no assignment costs less than the sum of the row minima), so the Hungarian method is only
+    needed for the problems where two rows want the same column.
 
     Parameters
     ----------
-    grounds : list of ndarray, shape (P_c, 2)
-        Ground positions per camera (NaN rows are ignored).
+    cost : ndarray, shape (N, R, K), K >= 1
+        ``inf`` where a pairing is impossible.
+    rows : ndarray of bool, shape (N, R)
+        The rows that take part.
 
     Returns
     -------
-    ndarray of int, shape (n_clusters, C)
-        Person slot of each camera in each cluster, -1 where absent.
+    best : ndarray of int, shape (N, R)
+        Each row's cheapest column.
+    solved : ndarray of bool, shape (N,)
+        Problems where ``best`` is the assignment (distinct columns, every row has one and
+        no tie for it).
     """
-    n_cams = len(grounds)
-    members: list[list[int]] = []
-    sums: list[NDArray[np.float64]] = []
-    counts: list[int] = []
-    for c, g in enumerate(grounds):
-        valid = np.flatnonzero(np.isfinite(g).all(1))
-        if valid.size == 0:
-            continue
-        matched = np.zeros(valid.size, dtype=bool)
-        if members:
-            centres = np.array(sums) / np.array(counts)[:, None]
-            cost = np.linalg.norm(g[valid, None] - centres[None], axis=-1)
-            r, q = linear_sum_assignment(cost)
-            for i, k in zip(r, q, strict=True):
-                if cost[i, k] < gate and members[k][c] < 0:
-                    members[k][c] = int(valid[i])
-                    sums[k] = sums[k] + g[valid[i]]
-                    counts[k] += 1
-                    matched[i] = True
-        for i in np.flatnonzero(~matched):
-            row = [-1] * n_cams
-            row[c] = int(valid[i])
-            members.append(row)
-            sums.append(g[valid[i]].copy())
-            counts.append(1)
-    if not members:
-        return np.zeros((0, n_cams), dtype=np.int64)
-    return np.array(members, dtype=np.int64)
+    r, k = rows.shape[1], cost.shape[-1]
+    best = np.argmin(cost, axis=-1)
+    low = np.take_along_axis(cost, best[..., None], -1)[..., 0]
+    # a tie leaves the choice to the Hungarian method, as it would be without this shortcut
+    unique = np.partition(cost, 1, axis=-1)[..., 1] > low if k > 1 else np.ones_like(rows)
+    # rows that do not take part get distinct negative labels, so they never collide
+    label = np.sort(np.where(rows, best, -1 - np.arange(r)[None, :]), axis=1)
+    distinct = ~(label[:, 1:] == label[:, :-1]).any(1)
+    return best, distinct & (np.isfinite(low) & unique | ~rows).all(1)
 
 
 def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
                  ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Clusters of at least two views at every time: (time index (G,), slots (G, C))."""
-    n_cams = len(grounds)
-    t_idx, slots = [], []
-    for t in range(grounds[0].shape[0]):
-        cl = _cluster_time([g[t] for g in grounds], gate_m)
-        cl = cl[(cl >= 0).sum(1) >= 2]
-        t_idx.append(np.full(len(cl), t))
-        slots.append(cl)
-    t_all = np.concatenate(t_idx) if t_idx else np.zeros(0, int)
-    s_all = np.concatenate(slots) if slots else np.zeros((0, n_cams), int)
-    return t_all, s_all
+    """Cluster the persons of all cameras at every time: clusters of at least two views.
+
+    At each time the cameras are taken in order; each camera's persons are matched to the
+    current clusters (mean ground position of their members) by an optimal assignment, a pair
+    within ``gate_m`` joins the cluster and every other person starts a new one. All times are
+    processed together (the assignments are the row minima wherever those are distinct, see
+    :func:`_row_minima_assignment`; the Hungarian method solves the rest).
+
+    Parameters
+    ----------
+    grounds : list of ndarray, shape (T, P_c, 2)
+        Ground positions per camera (NaN rows are absent persons).
+
+    Returns
+    -------
+    t_all : ndarray of int, shape (G,)
+        Time index of each cluster (times in order, clusters in order of creation).
+    s_all : ndarray of int, shape (G, C)
+        Person slot of each camera in each cluster, -1 where absent.
+    """
+    n_cams, n_t = len(grounds), grounds[0].shape[0]
+    k_max = sum(g.shape[1] for g in grounds)
+    members = np.full((n_t, k_max, n_cams), -1, dtype=np.int64)
+    sums = np.zeros((n_t, k_max, 2))
+    counts = np.zeros((n_t, k_max))
+    n_cl = np.zeros(n_t, dtype=np.int64)
+    for c, g in enumerate(grounds):
+        n_p = g.shape[1]
+        if n_p == 0:
+            continue
+        valid = np.isfinite(g).all(-1)  # (T, P)
+        matched = np.zeros((n_t, n_p), dtype=bool)
+        k_used = int(n_cl.max())
+        if k_used:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                centres = sums[:, :k_used] / counts[:, :k_used, None]
+            cost = np.linalg.norm(g[:, :, None] - centres[:, None], axis=-1)  # (T, P, K)
+            exists = np.arange(k_used)[None, :] < n_cl[:, None]
+            cost = np.where(valid[:, :, None] & exists[:, None, :], cost, np.inf)
+            best, solved = _row_minima_assignment(cost, valid)
+            assign = np.where(valid, best, -1)
+            for t in np.flatnonzero(~solved & (n_cl > 0) & valid.any(1)):
+                rows = np.flatnonzero(valid[t])
+                r, q = linear_sum_assignment(cost[t][np.ix_(rows, np.arange(n_cl[t]))])
+                assign[t] = -1
+                assign[t, rows[r]] = q
+            ok = assign >= 0
+            d = np.take_along_axis(cost, np.maximum(assign, 0)[..., None], -1)[..., 0]
+            matched = ok & (d < gate_m)
+            tt, pp = np.nonzero(matched)
+            kk = assign[tt, pp]
+            members[tt, kk, c] = pp
+            sums[tt, kk] += g[tt, pp]
+            counts[tt, kk] += 1
+        new = valid & ~matched
+        # new clusters in slot order after the existing ones
+        k_new = n_cl[:, None] + np.cumsum(new, axis=1) - 1
+        tt, pp = np.nonzero(new)
+        members[tt, k_new[tt, pp], c] = pp
+        sums[tt, k_new[tt, pp]] = g[tt, pp]
+        counts[tt, k_new[tt, pp]] = 1
+        n_cl = n_cl + new.sum(1)
+    keep = (members >= 0).sum(-1) >= 2
+    t_all, k_all = np.nonzero(keep)
+    return t_all.astype(np.int64), members[t_all, k_all]
 
 
 def _align_grounds(grounds: list[NDArray[np.float64]], t_all: NDArray[np.int64],
