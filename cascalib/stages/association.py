@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from cascalib.camera import Camera
+from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
@@ -108,9 +109,9 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
         return links
     a, b = keypoints[:-1, :, None, :, :2], keypoints[1:, None, :, :, :2]
     with np.errstate(invalid="ignore"), _quiet():
-        d = np.nanmean(np.linalg.norm(a - b, axis=-1), axis=-1)  # (F-1, P, P)
+        d = np.nanmean(norm_xy(a - b), axis=-1)  # (F-1, P, P)
         ext = np.nanmax(keypoints[..., :2], axis=2) - np.nanmin(keypoints[..., :2], axis=2)
-        size = np.linalg.norm(ext, axis=-1)  # (F, P)
+        size = norm_xy(ext)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
     rows_ok = np.isfinite(cost).any(2)
     best, solved = _row_minima_assignment(cost, rows_ok)
@@ -172,13 +173,17 @@ def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
     b = keypoints[k1[:, None], np.maximum(nxt, 0)]
     b[nxt < 0] = np.nan
-    res = a + w * (b - a)
+    res = b - a  # a + w (b - a), in place: the clock search calls this on large arrays
+    res *= w
+    res += a
     # where one side is missing, the nearer frame's value if it is within half a frame
     gap = ~np.isfinite(res)
     if gap.any():
-        near = np.where(w <= 0.5, a, np.nan)
-        near = np.where(np.isfinite(near), near, np.where(w >= 0.5, b, np.nan))
-        res[gap] = near[gap]
+        # a within half a frame before (b at exactly half a frame if a is missing), else b
+        near = np.where(w <= 0.5, np.where(np.isfinite(a) | (w < 0.5), a, b), b)
+        np.copyto(res, near, where=gap)
+    if inside.all():
+        return res
     out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
     out[inside] = res
     return out
@@ -279,7 +284,7 @@ def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
         if k_used:
             with np.errstate(invalid="ignore", divide="ignore"):
                 centres = sums[:, :k_used] / counts[:, :k_used, None]
-            cost = np.linalg.norm(g[:, :, None] - centres[:, None], axis=-1)  # (T, P, K)
+            cost = norm_xy(g[:, :, None] - centres[:, None])  # (T, P, K)
             exists = np.arange(k_used)[None, :] < n_cl[:, None]
             cost = np.where(valid[:, :, None] & exists[:, None, :], cost, np.inf)
             best, solved = _row_minima_assignment(cost, valid)
@@ -434,7 +439,7 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
     with _quiet():
         med = np.nanmedian(err, axis=-1)  # (G, C)
         ext = np.nanmax(obs[..., :2], axis=2) - np.nanmin(obs[..., :2], axis=2)
-    size = np.maximum(np.linalg.norm(ext, axis=-1), 10.0)
+    size = np.maximum(norm_xy(ext), 10.0)
     bad = np.isfinite(obs[..., 0]).any(-1) & ~(med / size < tolerance)
     # only judge groups that keep two views: with a 2-view group both views get the same error
     out = obs.copy()

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError, RefinementFailed
+from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups
@@ -276,7 +277,7 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
         # in the graph's pixels: cameras of known intrinsics observe their ideal pinhole's
         proj = np.stack([(prob.cameras[c].with_(R=cam.R, t=cam.t) if c in prob.fixed else cam)
                          .project(points) for c, cam in enumerate(cameras)], axis=1)  # (S,C,J,2)
-        err = np.linalg.norm(proj - prob.obs[..., :2], axis=-1)
+        err = norm_xy(proj - prob.obs[..., :2])
         e = err[np.isfinite(err)]
         prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
     return cameras, points, info, graph, values

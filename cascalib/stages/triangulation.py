@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cascalib.camera import Camera, distort_normalized
+from cascalib.geometry import norm_xy
 
 __all__ = ["reprojection_errors", "triangulate"]
 
@@ -96,7 +97,7 @@ def reprojection_errors(cameras: list[Camera], X: NDArray[np.float64], uv: NDArr
         NaN where the observation or the point is missing (or behind the camera).
     """
     proj = np.stack([_project(cam, X) for cam in cameras])
-    return np.linalg.norm(proj - uv, axis=-1)
+    return norm_xy(proj - uv)
 
 
 def _project(cam: Camera, X: NDArray[np.float64]) -> NDArray[np.float64]:
