@@ -171,7 +171,7 @@ class Camera:
         shape = uv.shape
         flat = uv.reshape(-1, 2)
         out = np.full_like(flat, np.nan)
-        ok = np.isfinite(flat).all(1)
+        ok = np.isfinite(flat[:, 0]) & np.isfinite(flat[:, 1])  # .all(1): a slow short-axis reduce
         if ok.any():
             Kinv = np.linalg.inv(self.K)
             h = np.c_[flat[ok], np.ones(ok.sum())] @ Kinv.T

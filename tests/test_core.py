@@ -185,3 +185,20 @@ def test_norm_xy_equals_numpy_norm_bit_for_bit():
     assert got.shape == (50, 7)
     assert np.array_equal(got, np.linalg.norm(v, axis=-1), equal_nan=True)
     assert np.isnan(got[3, 2]) and np.all(np.isfinite(np.delete(got.ravel(), 3 * 7 + 2)))
+
+
+def test_nan_statistics_equal_numpy():
+    import warnings
+
+    from cascalib.nanstats import joint_extent, nanmedian_last
+    kp = np.random.default_rng(4).normal(size=(40, 3, 26, 3)) * 100
+    kp[np.random.default_rng(5).random(kp.shape[:3]) < 0.5] = np.nan
+    kp[0, 1] = np.nan  # a person with no joint
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        want_ext = np.nanmax(kp[..., :2], axis=2) - np.nanmin(kp[..., :2], axis=2)
+        want_med = np.nanmedian(kp[..., 0], axis=-1)
+    ext = joint_extent(kp)
+    assert ext.shape == (40, 3, 2) and np.isnan(ext[0, 1]).all()
+    assert np.array_equal(ext, want_ext, equal_nan=True)
+    assert np.array_equal(nanmedian_last(kp[..., 0]), want_med, equal_nan=True)

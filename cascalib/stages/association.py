@@ -29,6 +29,7 @@ from scipy.optimize import linear_sum_assignment
 
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
+from cascalib.nanstats import joint_extent, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
@@ -110,7 +111,7 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     a, b = keypoints[:-1, :, None, :, :2], keypoints[1:, None, :, :, :2]
     with np.errstate(invalid="ignore"), _quiet():
         d = np.nanmean(norm_xy(a - b), axis=-1)  # (F-1, P, P)
-        ext = np.nanmax(keypoints[..., :2], axis=2) - np.nanmin(keypoints[..., :2], axis=2)
+        ext = joint_extent(keypoints)
         size = norm_xy(ext)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
     rows_ok = np.isfinite(cost).any(2)
@@ -437,8 +438,8 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
     _, err = triangulate(cameras, uv, conf, huber_px=huber_px, n_iter=2)
     err = err.reshape(n_cams, n_g, n_j).transpose(1, 0, 2)
     with _quiet():
-        med = np.nanmedian(err, axis=-1)  # (G, C)
-        ext = np.nanmax(obs[..., :2], axis=2) - np.nanmin(obs[..., :2], axis=2)
+        med = nanmedian_last(err)  # (G, C)
+        ext = joint_extent(obs)
     size = np.maximum(norm_xy(ext), 10.0)
     bad = np.isfinite(obs[..., 0]).any(-1) & ~(med / size < tolerance)
     # only judge groups that keep two views: with a 2-view group both views get the same error

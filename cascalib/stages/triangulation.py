@@ -144,11 +144,11 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
     n_cams, n = uv.shape[:2]
     if n == 0:
         return np.zeros((0, 3)), np.zeros((n_cams, 0))
-    seen = np.isfinite(uv).all(-1)
+    seen = np.isfinite(uv[..., 0]) & np.isfinite(uv[..., 1])  # not .all(-1): a slow reduce
     c0 = np.ones((n_cams, n)) if conf is None else np.nan_to_num(np.asarray(conf, float))
     c0 = np.where(seen, np.clip(c0, 1e-3, None), 0.0)
     xy = np.stack([cam.undistort(uv[i]) for i, cam in enumerate(cameras)])
-    seen &= np.isfinite(xy).all(-1)
+    seen &= np.isfinite(xy[..., 0]) & np.isfinite(xy[..., 1])
     c0 = np.where(seen, c0, 0.0)
     P = np.stack([np.hstack([cam.R, cam.t[:, None]]) for cam in cameras])
     # a DLT row is scaled by the depth: divide by it (from the previous solution) so weights
