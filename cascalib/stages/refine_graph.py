@@ -308,6 +308,7 @@ def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Ref
     params = gtsam.SfmLevenbergMarquardtParams() if schur else gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.max_iterations)
     params.setRelativeErrorTol(cfg.relative_tolerance)
+    params.setlambdaLowerBound(cfg.lambda_lower_bound)
     if schur:
         params.setEliminationMode(gtsam.SfmEliminationMode.Schur)
         return gtsam.SfmLevenbergMarquardtOptimizer(graph, values, params)
