@@ -175,10 +175,12 @@ class RefineConfig(BaseModel):
         "keeps it unless it raises the held-out reprojection error. A principal point 2 % off "
         "the centre tilts a wide-angle camera by about a degree if it is held fixed.")
     principal_point_iterations: int = Field(
-        4, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass and of "
+        3, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass and of "
         "its split-half check. Measured (terrace, 1200 person-frames): the principal points "
         "move by < 0.1 px after the 4th; the 5th to 10th iterations cost 2.5 s -> 11 s and lower "
-        "the error by 0.14 %.")
+        "the error by 0.14 %. On 9 simulated 40 s scenes, 3 instead of 4 changed the median "
+        "relative rotation by at most 0.06 deg per scene (mean over scenes 0.465 -> 0.466) and "
+        "saves 0.7 s on 4 cameras x 3000 frames x 5 persons.")
     principal_point_sigma: float = Field(
         0.02, gt=0, description="Prior sd of the principal point around the image centre, as a "
         "fraction of the image width.")
