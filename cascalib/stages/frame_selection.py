@@ -11,6 +11,8 @@ triangulated afterwards with the refined cameras.
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -91,16 +93,35 @@ def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_sele
     cells = _cells(assoc.subset(usable), image_sizes, n_time_bins=n_time_bins,
                    floor_cell_m=floor_cell_m, image_grid=image_grid)
     q = quality[usable] / quality[usable].max()
+    return np.sort(usable[_greedy_cover(cells, q, n_select)])
+
+
+def _greedy_cover(cells: NDArray[np.int64], q: NDArray[np.float64], n_select: int
+                  ) -> list[int]:
+    """Greedy facility location: ``n_select`` rows of ``cells`` (G, K), -1 = no cell.
+
+    Row ``g`` scores ``q[g] * (0.25 + sum_k 0.5 ** n[cells[g, k]])`` with ``n`` the number of
+    rows already chosen in each cell; each step takes the best row (the first on ties). Scores
+    only fall as rows are chosen, so the choice is made lazily (Minoux): the heap keeps scores
+    computed earlier as upper bounds, and only the rows reaching its top are re-scored. Same
+    picks as re-scoring every row at every step, in a fraction of the time.
+    """
     counts = np.zeros(cells.max() + 2)
     valid = cells >= 0
     safe = np.where(valid, cells, counts.size - 1)
-    chosen = np.zeros(usable.size, dtype=bool)
-    picks = []
-    for _ in range(n_select):
-        value = (valid * 0.5 ** counts[safe]).sum(1)
-        score = np.where(chosen, -1.0, q * (0.25 + value))
-        i = int(np.argmax(score))
-        chosen[i] = True
+
+    def score(rows: NDArray[np.int64] | int) -> NDArray[np.float64]:
+        return q[rows] * (0.25 + (valid[rows] * 0.5 ** counts[safe[rows]]).sum(-1))
+
+    heap = [(-float(s), i) for i, s in enumerate(score(np.arange(len(q))))]
+    heapq.heapify(heap)
+    picks: list[int] = []
+    while len(picks) < n_select:
+        _, i = heapq.heappop(heap)
+        fresh = (-float(score(i)), i)
+        if heap and fresh > heap[0]:  # another row may now score more: look again later
+            heapq.heappush(heap, fresh)
+            continue
         picks.append(i)
         np.add.at(counts, safe[i][valid[i]], 1)
-    return np.sort(usable[picks])
+    return picks
