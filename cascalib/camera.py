@@ -173,9 +173,12 @@ class Camera:
         out = np.full_like(flat, np.nan)
         ok = np.isfinite(flat[:, 0]) & np.isfinite(flat[:, 1])  # .all(1): a slow short-axis reduce
         if ok.any():
-            Kinv = np.linalg.inv(self.K)
-            h = np.c_[flat[ok], np.ones(ok.sum())] @ Kinv.T
-            xy = h[:, :2] / h[:, 2:3]  # distorted normalised coordinates (exact with skew)
+            # distorted normalised coordinates, K inverted by hand (exact with skew; a tall
+            # (N, 3) @ (3, 3) matmul is several times slower)
+            K = self.K
+            y = (flat[ok, 1] - K[1, 2]) / K[1, 1]
+            x = (flat[ok, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+            xy = np.stack([x, y], axis=-1)
             if self.has_distortion:
                 # Iterate with an identity K: OpenCV's undistortPoints ignores K[0, 1] (skew),
                 # which would make undistort() disagree with project() for skewed cameras.

