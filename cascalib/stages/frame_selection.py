@@ -11,8 +11,6 @@ triangulated afterwards with the refined cameras.
 
 from __future__ import annotations
 
-import heapq
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -101,27 +99,28 @@ def _greedy_cover(cells: NDArray[np.int64], q: NDArray[np.float64], n_select: in
     """Greedy facility location: ``n_select`` rows of ``cells`` (G, K), -1 = no cell.
 
     Row ``g`` scores ``q[g] * (0.25 + sum_k 0.5 ** n[cells[g, k]])`` with ``n`` the number of
-    rows already chosen in each cell; each step takes the best row (the first on ties). Scores
-    only fall as rows are chosen, so the choice is made lazily (Minoux): the heap keeps scores
-    computed earlier as upper bounds, and only the rows reaching its top are re-scored. Same
-    picks as re-scoring every row at every step, in a fraction of the time.
+    rows already chosen in each cell; each step takes the best row (the first on ties). The
+    terms ``0.5 ** n`` are kept in a (G, K) table and a pick rewrites only the entries of its
+    own cells: the same picks as re-scoring every row at every step, several times faster.
     """
     counts = np.zeros(cells.max() + 2)
     valid = cells >= 0
     safe = np.where(valid, cells, counts.size - 1)
-
-    def score(rows: NDArray[np.int64] | int) -> NDArray[np.float64]:
-        return q[rows] * (0.25 + (valid[rows] * 0.5 ** counts[safe[rows]]).sum(-1))
-
-    heap = [(-float(s), i) for i, s in enumerate(score(np.arange(len(q))))]
-    heapq.heapify(heap)
+    term = valid * 0.5 ** counts[safe]
+    # the (row, column) entries of each cell, grouped by cell
+    rows, cols = np.nonzero(valid)
+    order = np.argsort(safe[rows, cols], kind="stable")
+    rows, cols = rows[order], cols[order]
+    start = np.searchsorted(safe[rows, cols], np.arange(counts.size + 1))
+    chosen = np.zeros(len(q), dtype=bool)
     picks: list[int] = []
-    while len(picks) < n_select:
-        _, i = heapq.heappop(heap)
-        fresh = (-float(score(i)), i)
-        if heap and fresh > heap[0]:  # another row may now score more: look again later
-            heapq.heappush(heap, fresh)
-            continue
+    for _ in range(n_select):
+        score = np.where(chosen, -1.0, q * (0.25 + term.sum(1)))
+        i = int(np.argmax(score))
+        chosen[i] = True
         picks.append(i)
-        np.add.at(counts, safe[i][valid[i]], 1)
+        for c in safe[i][valid[i]]:
+            counts[c] += 1
+            at = slice(start[c], start[c + 1])
+            term[rows[at], cols[at]] = 0.5 ** counts[c]
     return picks

@@ -1,4 +1,4 @@
-"""The lazy greedy frame selection picks what re-scoring every group at every step picks."""
+"""The greedy frame selection (re-scoring only the rows a pick changes) picks what re-scoring every group at every step picks."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 from cascalib.stages.frame_selection import _greedy_cover
 
 
-def test_lazy_greedy_cover_equals_rescoring_every_step():
+def test_greedy_cover_equals_rescoring_every_row_at_every_step():
     rng = np.random.default_rng(11)
     for trial in range(20):
         n, k = int(rng.integers(5, 400)), int(rng.integers(1, 7))
