@@ -55,16 +55,16 @@ def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np
         NaN where fewer than two views have weight or the views are degenerate.
     """
     n_cams, n = w.shape
-    x, y = np.nan_to_num(xy[..., 0]).T, np.nan_to_num(xy[..., 1]).T  # (N, C)
-    w2 = (w * w).T
-    S = np.empty((n, 4, n_cams))
-    S[:, 0] = w2
-    np.multiply(w2, x, out=S[:, 1])
-    np.multiply(w2, y, out=S[:, 2])
-    S[:, 3] = S[:, 1] * x + S[:, 2] * y
+    x, y = np.nan_to_num(xy[..., 0]), np.nan_to_num(xy[..., 1])  # (C, N)
+    # the four scalars per observation as contiguous (C, N) rows: 7x faster to fill than (N, 4, C)
+    S = np.empty((4, n_cams, n))
+    np.multiply(w, w, out=S[0])
+    np.multiply(S[0], x, out=S[1])
+    np.multiply(S[0], y, out=S[2])
+    S[3] = S[1] * x + S[2] * y
     # the normal equations of every point in one GEMM: (16, 4C) @ (4C, N), 4x faster than
     # accumulating batched (4, C) @ (C, 4) products
-    m = _normal_coefficients(P).reshape(-1, 16).T @ S.reshape(n, -1).T  # (16, N)
+    m = _normal_coefficients(P).reshape(-1, 16).T @ S.reshape(4 * n_cams, n)  # (16, N)
     # inhomogeneous form (X, 1): A X = b with A = M[:3, :3] (symmetric), b = -M[:3, 3],
     # solved by the adjugate (Cramer), vectorised over the points
     a00, a01, a02, a11, a12, a22 = m[0], m[1], m[2], m[5], m[6], m[10]
