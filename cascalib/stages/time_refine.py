@@ -11,7 +11,6 @@ is kept, so the time mapping of every camera stays affine and consistent with th
 from __future__ import annotations
 
 import logging
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -111,8 +110,9 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
                         rng=np.random.default_rng(seeds[c]))
 
     others = [c for c in range(n_cams) if c != reference]
-    # numpy releases the GIL in the sorts and products that dominate: cameras in parallel
-    with ThreadPoolExecutor(max_workers=min(len(others), os.cpu_count() or 1) or 1) as pool:
+    # numpy releases the GIL in the sorts and products that dominate: cameras in parallel, one
+    # thread each (with one per core, 3 cameras on 2 cores took two rounds: the last alone)
+    with ThreadPoolExecutor(max_workers=max(len(others), 1)) as pool:
         for c, res in zip(others, pool.map(measure, others), strict=True):
             if res is not None:
                 measured[c], coupling[c] = res
