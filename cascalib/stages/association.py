@@ -108,9 +108,14 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     links = np.full((n_f, n_p), -1, dtype=np.int64)
     if n_f < 2 or n_p == 0:
         return links
-    a, b = keypoints[:-1, :, None, :, :2], keypoints[1:, None, :, :, :2]
+    # mean joint displacement of every pair of persons present in consecutive frames (only
+    # those: empty slots are common, and the full (F-1, P, P, J) difference is large)
+    present = np.isfinite(keypoints[..., 0]).any(-1)  # (F, P)
+    k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
+    d = np.full((n_f - 1, n_p, n_p), np.nan)
     with np.errstate(invalid="ignore"), _quiet():
-        d = np.nanmean(norm_xy(a - b), axis=-1)  # (F-1, P, P)
+        d[k, p, q] = np.nanmean(norm_xy(keypoints[k, p, :, :2] - keypoints[k + 1, q, :, :2]),
+                                axis=-1)
         ext = joint_extent(keypoints)
         size = norm_xy(ext)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
