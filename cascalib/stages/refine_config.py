@@ -75,8 +75,10 @@ class RefineConfig(BaseModel):
         "step then took 12 trials to climb back (measured: a 2.5 s distortion pass, 1.5 s with "
         "this bound, same result).")
     schur: bool = Field(
-        True, description="Use gtsam's SfmLevenbergMarquardtOptimizer (Schur complement on "
-        "the 3D points), measured 25-28 % faster than plain LM from 500 frames.")
+        True, description="Eliminate the 3D points first (the Schur complement on the points), "
+        "then the cameras. Measured on the principal-point pass of 4 cameras x 3000 frames x 5 "
+        "persons: 1.1 s against 2.0 s with gtsam's SfmLevenbergMarquardtOptimizer and 2.5 s "
+        "for gtsam's COLAMD ordering alone (used when False).")
 
     # -- measurement model -------------------------------------------------------------------------
     sigma_px: float = Field(

@@ -303,25 +303,38 @@ class SolveInfo:
     seconds: float
 
 
+def _points_first(values: gtsam.Values) -> gtsam.Ordering:
+    """Elimination ordering: every 3D point, then the cameras (the Schur complement)."""
+    keys = np.array(values.keys(), dtype=np.uint64)
+    point = (keys >> np.uint64(56)) == gtsam.Symbol(P(0)).chr()
+    return gtsam.Ordering(np.concatenate([keys[point], keys[~point]]).tolist())
+
+
 def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig,
                schur: bool) -> gtsam.NonlinearOptimizer:
-    params = gtsam.SfmLevenbergMarquardtParams() if schur else gtsam.LevenbergMarquardtParams()
+    """LM; with ``schur``, eliminating the points first, else in gtsam's COLAMD ordering.
+
+    Measured on the principal-point pass (4 x 3000 x 5, 1200 person-frames, 117k factors, three
+    iterations): points first 0.03 s to set up and 1.1 s to solve, gtsam's
+    SfmLevenbergMarquardtOptimizer (Schur mode) 0.24 + 1.8 s, COLAMD 2.5 s for the ordering
+    alone; the same solution (errors equal to 1e-12).
+    """
+    params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(cfg.max_iterations)
     params.setRelativeErrorTol(cfg.relative_tolerance)
     params.setlambdaLowerBound(cfg.lambda_lower_bound)
     if schur:
-        params.setEliminationMode(gtsam.SfmEliminationMode.Schur)
-        return gtsam.SfmLevenbergMarquardtOptimizer(graph, values, params)
+        params.setOrdering(_points_first(values))
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
 
 
 def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig
              ) -> tuple[gtsam.Values, SolveInfo]:
-    """Levenberg-Marquardt (with Schur elimination of the points when configured).
+    """Levenberg-Marquardt (eliminating the points first when ``cfg.schur``).
 
-    The Schur-complement optimiser can stop with an empty ``RuntimeError`` where plain LM goes
-    on (seen on a simulated phone rig with known intrinsics; the cause inside gtsam is not
-    known); the solve is then repeated with plain LM.
+    Should the points-first solve raise a ``RuntimeError`` (gtsam's Schur-mode optimiser once
+    stopped with an empty one on a simulated phone rig with known intrinsics, where COLAMD
+    went on), it is repeated in COLAMD ordering.
 
     Raises
     ------
@@ -337,7 +350,7 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
         except RuntimeError as exc:
             if not cfg.schur:
                 raise
-            log.warning("Schur-complement solve failed (%s), solving with plain LM", exc or
+            log.warning("points-first solve failed (%s), solving in COLAMD ordering", exc or
                         "no message")
             opt = _optimizer(graph, values, cfg, False)
             result = opt.optimize()

@@ -73,6 +73,28 @@ def test_zero_noise_recovers_perturbed_rig(scene):
     assert rel < 0.01 and pos < 0.003 and focal < 1e-4
 
 
+def test_points_first_ordering_solves_like_colamd(scene):
+    from cascalib.stages.refine_graph import _points_first
+    cfg = RefineConfig()
+    start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02)
+    prob = _problem(scene, list(start), cfg, n=12)
+    graph, values = build_graph(prob, cfg), initial_values(prob)
+    ordering = _points_first(values)
+    order = [ordering.at(i) for i in range(ordering.size())]
+    chars = [chr(gtsam.Symbol(k).chr()) for k in order]
+    n_points = chars.count("p")
+    assert n_points > 100 and set(chars[:n_points]) == {"p"} and "p" not in chars[n_points:]
+    assert sorted(order) == sorted(values.keys())
+    fast, info = optimize(graph, values, cfg)
+    slow, ref = optimize(graph, values, cfg.model_copy(update={"schur": False}))
+    assert info.error_after < 0.5 * info.error_before
+    assert info.error_after == pytest.approx(ref.error_after, rel=1e-6)
+    for c in range(len(start)):
+        d = fast.atPose3(X(c)).between(slow.atPose3(X(c)))
+        assert np.linalg.norm(d.translation()) < 1e-5
+        assert np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(d.rotation()))) < 1e-4
+
+
 def test_reprojection_factor_matches_camera_projection(scene):
     cfg = RefineConfig()
     prob = _problem(scene, list(scene.truth), cfg, n=2)
