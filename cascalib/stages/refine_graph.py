@@ -137,9 +137,14 @@ def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
     models = {lv: _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
         2, prob.sigma_px / np.sqrt(lv / 20.0))) for lv in range(1, 21)}
     s_i, c_i, j_i = np.nonzero(ok)
-    for s, c, j in zip(s_i.tolist(), c_i.tolist(), j_i.tolist(), strict=True):
-        graph.add(factor(prob.obs[s, c, j, :2], models[level[s, c, j]], X(c),
-                         P(int(keys[s, j])), K(c)))
+    # everything per factor precomputed as Python objects: the loop only builds factors
+    uv = list(prob.obs[s_i, c_i, j_i, :2])
+    noise = [models[lv] for lv in level[s_i, c_i, j_i].tolist()]
+    points = (keys[s_i, j_i].astype(np.uint64) + np.uint64(P(0))).tolist()  # P(k) = P(0) + k
+    poses = [X(c) for c in range(len(prob.cameras))]
+    cals = [K(c) for c in range(len(prob.cameras))]
+    for z, nm, c, p in zip(uv, noise, c_i.tolist(), points, strict=True):
+        graph.add(factor(z, nm, poses[c], p, cals[c]))
     return len(s_i)
 
 
