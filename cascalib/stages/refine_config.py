@@ -43,12 +43,14 @@ class RefineConfig(BaseModel):
         "The paper keeps the top-k most confident poses; the time of the solve grows with this, "
         "not with the sequence length.")
     intrinsics_groups: int = Field(
-        1200, ge=10, description="Person-frames of the principal-point pass. The principal point "
+        2400, ge=10, description="Person-frames of the principal-point pass. The principal point "
         "trades against the camera's rotation to first order (only the perspective across the "
         "image tells them apart, and on a ring of cameras hardly at all), so it needs more data "
         "than the pose. Measured on 9 simulated 40 s scenes (terrace, lab ring, periodic; seeds "
-        "0-2), mean / max relative rotation: 240 -> 0.69 / 3.52 deg, 1200 -> 0.55 / 2.33, "
-        "2400 -> 0.48 / 1.39, but 2400 adds 4 s to Stage V on 4 cameras x 3000 frames x 5 persons.")
+        "0-2), median / mean / max relative rotation: 1200 -> 0.37 / 0.47 / 1.73 deg, 2400 -> "
+        "0.28 / 0.41 / 1.24, 3600 -> 0.36 / 0.45 / 1.25 (an earlier version: 240 -> mean 0.69, "
+        "max 3.52). 2400 instead of 1200 adds about 1 s to Stage V on 4 cameras x 3000 frames x "
+        "5 persons.")
     distortion_groups: int = Field(
         240, ge=10, description="Person-frames of the lens-distortion pass (its principal point "
         "is held where the principal-point pass put it).")
