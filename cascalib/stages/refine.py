@@ -513,7 +513,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
     # steps: 3 per round, the two intrinsics passes, the reconstruction (roughly equal times)
-    n_steps, done = 3 * cfg.n_rounds + 3, 0
+    n_rounds = cfg.n_rounds or (2 if cfg.principal_point != "never" else 3)
+    n_steps, done = 3 * n_rounds + 3, 0
 
     def step() -> None:
         nonlocal done
@@ -533,7 +534,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     targets: dict[int, NDArray] | None = None
     # the rounds need enough person-frames to choose max_groups from, not every frame
     rounds = replace(data, times=data.times[::max(1, -(-len(data.times) // cfg.round_frames))])
-    for r in range(cfg.n_rounds):
+    for r in range(n_rounds):
         refined = r > 0
         assoc = associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
                           ankle_height=cfg.ankle_height,

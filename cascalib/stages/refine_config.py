@@ -57,12 +57,16 @@ class RefineConfig(BaseModel):
     spread_groups: int = Field(
         240, ge=10, description="Most person-frames in each half of the split-half check of the "
         "principal point (the uncertainty the quality report gives it).")
-    n_rounds: int = Field(
-        2, ge=1, description="Solve / re-associate rounds (outlier rejection by re-association). "
-        "Measured on 9 simulated 40 s scenes (terrace, lab ring, periodic; seeds 0-2), median / "
-        "mean / max relative rotation: 3 rounds 0.42 / 0.55 / 2.33 deg, 2 rounds 0.34 / 0.47 / "
-        "1.72, offsets max 0.25 frame both; 2 rounds take 2-3 s less on 4 cameras x 3000 frames "
-        "x 5 persons.")
+    n_rounds: int | None = Field(
+        None, ge=1, description="Solve / re-associate rounds (outlier rejection by "
+        "re-association; each also updates the clocks and bone lengths). None: 2 when the "
+        "principal-point pass follows (it re-solves every camera on intrinsics_groups "
+        "person-frames), else 3. Measured on 9 simulated 40 s scenes (terrace, lab ring, "
+        "periodic; seeds 0-2) with that pass, median / mean / max relative rotation: 3 rounds "
+        "0.42 / 0.55 / 2.33 deg, 2 rounds 0.34 / 0.47 / 1.72 (offsets max 0.25 frame both), "
+        "1 s less per round on 4 cameras x 3000 frames x 5 persons. Without it (principal "
+        "point at the image centre), from a start 3 deg / 0.3 m / 0.5 frame off (70 frames): "
+        "2 rounds 0.44 deg median, 3 rounds 0.20, 4 rounds 0.09.")
     round_frames: int = Field(
         1500, ge=100, description="Reference frames (evenly spread) associated in each round to "
         "choose the graph's person-frames from; every frame is reconstructed at the end.")
