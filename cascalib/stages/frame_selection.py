@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from cascalib.stages.association import Association
 
-__all__ = ["select_groups"]
+__all__ = ["select_groups", "usable_groups"]
 
 
 def _cells(assoc: Association, image_sizes: list[tuple[int, int]], *, n_time_bins: int,
@@ -54,6 +54,18 @@ def group_quality(assoc: Association, joints: NDArray[np.int64]) -> NDArray[np.f
     return (conf * multi[:, None, :]).sum((1, 2))
 
 
+def usable_groups(assoc: Association, joints: NDArray[np.int64], residual_quantile: float = 0.75,
+                  *, quality: NDArray[np.float64] | None = None) -> NDArray[np.int64]:
+    """Indices of the groups :func:`select_groups` chooses from: some joint seen twice, and an
+    association residual at most its ``residual_quantile`` (the least consistent quarter holds
+    most wrong matches: cheap insurance, any round)."""
+    ok = (group_quality(assoc, joints) if quality is None else quality) > 0
+    if assoc.residual is not None and np.isfinite(assoc.residual).any():
+        cut = np.nanpercentile(assoc.residual, 100 * residual_quantile)
+        ok &= np.nan_to_num(assoc.residual, nan=np.inf) <= cut
+    return np.flatnonzero(ok)
+
+
 def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_select: int,
                   joints: NDArray[np.int64], *, n_time_bins: int = 50, floor_cell_m: float = 1.0,
                   image_grid: int = 4, residual_quantile: float = 0.75) -> NDArray[np.int64]:
@@ -80,12 +92,7 @@ def select_groups(assoc: Association, image_sizes: list[tuple[int, int]], n_sele
         Sorted group indices, ``n = min(n_select, number of groups with quality > 0)``.
     """
     quality = group_quality(assoc, joints)
-    ok = quality > 0
-    if assoc.residual is not None and np.isfinite(assoc.residual).any():
-        # the least consistent quarter holds most wrong matches (cheap insurance, any round)
-        cut = np.nanpercentile(assoc.residual, 100 * residual_quantile)
-        ok &= np.nan_to_num(assoc.residual, nan=np.inf) <= cut
-    usable = np.flatnonzero(ok)
+    usable = usable_groups(assoc, joints, residual_quantile, quality=quality)
     if usable.size <= n_select:
         return usable
     cells = _cells(assoc.subset(usable), image_sizes, n_time_bins=n_time_bins,

@@ -32,7 +32,7 @@ from cascalib.errors import InputError, RefinementFailed
 from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
-from cascalib.stages.frame_selection import select_groups
+from cascalib.stages.frame_selection import select_groups, usable_groups
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import (
     SessionData,
@@ -306,9 +306,9 @@ def _pass_config(cfg: RefineConfig, model: str) -> RefineConfig:
 def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[int, int]],
                 joints: NDArray[np.int64], cfg: RefineConfig, n: int) -> NDArray[np.int64]:
     """Person-frames of an intrinsics pass of budget ``n``: the last round's selection ``sel``
-    at the rounds' size, else a new selection that leaves at least a fifth of the groups out
-    (for the held-out check of mode "auto")."""
-    n = min(n, max(cfg.max_groups, 4 * assoc.n_groups // 5))
+    at the rounds' size, else a new selection that leaves at least a fifth of the usable groups
+    out (for the held-out check of mode "auto")."""
+    n = min(n, max(cfg.max_groups, 4 * usable_groups(assoc, joints).size // 5))
     if n == cfg.max_groups:
         return sel
     return select_groups(assoc, sizes, n, joints, n_time_bins=cfg.n_time_bins,
@@ -354,12 +354,14 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     if mode == "always":
         return res + (prob,)
     # held out: person-frames that neither this pass nor the solves behind ``cameras`` saw, or
-    # the cameras it is compared with would be judged on their own data
-    rest = np.setdiff1d(np.arange(assoc.n_groups), np.union1d(sel, fitted))
+    # the cameras it is compared with would be judged on their own data; and only those the
+    # selection could have chosen: a large pass leaves mostly the least consistent groups, on
+    # which a lens model's gain drowned (phones seed 0: 1.7 % there, 6.1 % on usable groups)
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    rest = np.setdiff1d(usable_groups(assoc, joints), np.union1d(sel, fitted))
     if rest.size == 0:
         return None
     held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
-    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     e1 = _heldout_error(assoc, held, cameras, joints)
     e2 = _heldout_error(assoc, held, res[0], joints)
     gain = 1 - e2 / e1 if e1 > 0 else 0.0

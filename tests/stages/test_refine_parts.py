@@ -145,6 +145,12 @@ def test_intrinsics_pass_groups_leave_held_out_frames():
     assert _pass_groups(big, rounds, sizes, joints, cfg, cfg.max_groups) is rounds
     tiny = assoc_of(55)  # too few to leave a fifth out above the rounds' size
     assert _pass_groups(tiny, rounds, sizes, joints, cfg, cfg.intrinsics_groups) is rounds
+    # the fifth is of the groups the selection may choose: the least consistent quarter never
+    # is, and a held-out set of only those would judge a pass on the worst groups
+    a = assoc_of(1000)
+    worst = Association(a.times, a.obs, a.tracks, a.ground, np.arange(1000) / 1000.0)
+    sel = _pass_groups(worst, rounds, sizes, joints, cfg, cfg.intrinsics_groups)
+    assert len(sel) == 4 * 750 // 5 and sel.max() <= 749  # 750 usable
 
 
 def test_time_offsets_recovered(scene):
