@@ -110,15 +110,14 @@ def _greedy_cover(cells: NDArray[np.int64], q: NDArray[np.float64], n_select: in
     terms ``0.5 ** n`` are kept in a (G, K) table and a pick rewrites only the entries of its
     own cells: the same picks as re-scoring every row at every step, several times faster.
     """
-    counts = np.zeros(cells.max() + 2)
+    counts = np.zeros(cells.max() + 1)
     valid = cells >= 0
-    safe = np.where(valid, cells, counts.size - 1)
-    term = valid * 0.5 ** counts[safe]
+    term = valid.astype(np.float64)  # 0.5 ** 0 in every cell a row has
     # the (row, column) entries of each cell, grouped by cell
     rows, cols = np.nonzero(valid)
-    order = np.argsort(safe[rows, cols], kind="stable")
+    order = np.argsort(cells[rows, cols], kind="stable")
     rows, cols = rows[order], cols[order]
-    start = np.searchsorted(safe[rows, cols], np.arange(counts.size + 1))
+    start = np.searchsorted(cells[rows, cols], np.arange(counts.size + 1))
     chosen = np.zeros(len(q), dtype=bool)
     picks: list[int] = []
     for _ in range(n_select):
@@ -126,7 +125,7 @@ def _greedy_cover(cells: NDArray[np.int64], q: NDArray[np.float64], n_select: in
         i = int(np.argmax(score))
         chosen[i] = True
         picks.append(i)
-        for c in safe[i][valid[i]]:
+        for c in cells[i][valid[i]]:
             counts[c] += 1
             at = slice(start[c], start[c + 1])
             term[rows[at], cols[at]] = 0.5 ** counts[c]
