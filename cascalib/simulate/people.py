@@ -84,6 +84,12 @@ class PeopleConfig(BaseModel):
         "synchronisation, Sec. 5.1).")
     circle_radius: tuple[float, float] = Field(
         default=(1.5, 2.5), description="Circle radius range (m) when periodic.")
+    walk_trunk_pitch_rad: float = Field(
+        default=0.06, ge=0.0, le=0.3,
+        description="Forward lean of the trunk at full walking speed (rad; 0.06 = 3.4 deg, "
+        "normal gait leans 2-5 deg): the shoulders and head are 3-4 cm ahead of the feet, "
+        "which single-view calibration from 'upright' people does not model; 0 for an "
+        "upright walker.")
 
 
 @dataclass(frozen=True)
@@ -111,6 +117,7 @@ class Person:
     s: NDArray[np.float64]
     posture: NDArray[np.float64]
     actions: tuple[tuple[float, float, str], ...]
+    trunk_pitch: float = 0.06  # forward trunk lean at full walking speed (rad)
 
     @property
     def height(self) -> float:
@@ -189,7 +196,7 @@ class Person:
         swing = 0.35 * speed_frac * np.sin(w)  # left arm forward when the right leg is
         posture = {
             "pelvis_yaw": 0.07 * speed_frac * np.sin(w),
-            "trunk_pitch": 0.06 * speed_frac + post[:, 2],
+            "trunk_pitch": self.trunk_pitch * speed_frac + post[:, 2],
             "arm_flex_l": swing + post[:, 3], "arm_flex_r": -swing + post[:, 3],
             "elbow_flex_l": 0.25 + 0.25 * speed_frac * (1 + np.sin(w)),
             "elbow_flex_r": 0.25 + 0.25 * speed_frac * (1 - np.sin(w)),
@@ -373,5 +380,5 @@ def make_people(cfg: PeopleConfig, duration: float, rng: np.random.Generator) ->
             start = rng.uniform(-0.7, 0.7, 2) * half
             path, heading = _random_path(cfg, length, start, rng)
         people.append(Person(BodyModel(height), speed, stride, path, heading, s, posture,
-                             tuple(actions)))
+                             tuple(actions), cfg.walk_trunk_pitch_rad))
     return people
