@@ -53,7 +53,7 @@ from cascalib.stages.refine_graph import (
     optimize,
     unpack,
 )
-from cascalib.stages.time_refine import MAX_STEP_FRAMES, refine_offsets
+from cascalib.stages.time_refine import refine_offsets
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
@@ -463,21 +463,15 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     """
     data = _check_times(data, cfg)  # the same times for every cost compared
     cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
-    n_updates, limit = 0, cfg.time_iterations
-    while n_updates < limit:
+    for _ in range(cfg.time_iterations):
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              step=cfg.time_step_frames, max_groups=cfg.time_groups, rng=rng)
-        n_updates += 1
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
                  "kept" if new_cost < cost else "rejected")
         if new_cost >= cost:
             break
-        moved = max(abs(a.time_offset - b.time_offset) for a, b in zip(new, cameras, strict=True))
-        if moved >= MAX_STEP_FRAMES - 1e-9:
-            # a clock that moved by the largest step may still be far off: one more update
-            limit = min(max(limit, n_updates + 1), cfg.time_iterations + cfg.time_extra_iterations)
         cameras, cost, assoc = new, new_cost, new_assoc
     return cameras
 

@@ -153,13 +153,6 @@ class RefineConfig(BaseModel):
         "rounds by interpolating its 2D tracks (the rate from stage III is kept).")
     time_iterations: int = Field(
         2, ge=1, description="Offset updates (each after a re-association) after each round.")
-    time_extra_iterations: int = Field(
-        3, ge=0, description="Further offset updates after a round while an update is kept and "
-        "moves some camera by the largest step (0.5 frame): its clock may still be more than a "
-        "frame off. Measured (40 s scenes): crowd seed 0, stage III 0.1-0.9 frame off, final "
-        "offsets max 0.111 -> 0.070 frame; on 9 terrace, lab-ring and periodic scenes no update "
-        "hits the step and nothing changes. Continuing after smaller moves (>= 0.05 frame) made "
-        "those 9 scenes' rotations worse (median 0.32 -> 0.36 deg).")
     time_search_frames: float = Field(
         1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
     time_step_frames: float = Field(0.05, gt=0, description="Grid step of that search.")

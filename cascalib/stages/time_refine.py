@@ -22,13 +22,9 @@ from cascalib.nanstats import nanmedian_last
 from cascalib.stages.association import Association, interpolate_views
 from cascalib.stages.triangulation import triangulate
 
-__all__ = ["MAX_STEP_FRAMES", "offset_cost", "refine_offsets"]
+__all__ = ["offset_cost", "refine_offsets"]
 
 log = logging.getLogger(__name__)
-
-#: Largest change of one camera's offset per update (reference frames): the leave-one-out
-#: measurement is only a model of the coupling between the clocks, so updates are damped.
-MAX_STEP_FRAMES = 0.5
 
 
 def offset_cost(proj: NDArray[np.float64], candidates: NDArray[np.float64], *,
@@ -152,7 +148,7 @@ def _decouple(current: NDArray[np.float64], measured: NDArray[np.float64],
     except np.linalg.LinAlgError:
         err = current[idx] - measured[idx]
     # the weights are only a model of the coupling: damp, and never step past the search window
-    step = np.clip(-0.7 * err, -MAX_STEP_FRAMES, MAX_STEP_FRAMES)
+    step = np.clip(-0.7 * err, -0.5, 0.5)
     out = current.copy()
     out[idx] = current[idx] + step
     return out

@@ -185,28 +185,6 @@ def test_clock_search_is_not_pulled_between_frames():
     assert max(err) < 0.1, err
 
 
-def test_clock_updates_continue_while_a_clock_moves_by_the_largest_step():
-    """Stage III can leave clocks more than a frame off, all the same way (the crowd preset:
-    1.2-1.6). Each update moves a clock by at most half a frame, so the two updates of a round
-    stopped 0.2-0.5 frame short; updates go on while a camera still moves by the largest
-    step."""
-    from cascalib.stages.refine import refine_clocks
-    noisy = make_scene(n_frames=200, n_persons=3, noise_px=1.0, seed=1,
-                       offsets=(0.0, 0.3, -0.4, 0.2))
-    cams = [c.with_(time_offset=c.time_offset + d) for c, d in
-            zip(noisy.truth, (0.0, -1.4, -1.5, -1.2), strict=True)]
-    data = _prepare(noisy.tracks, noisy.truth)
-    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
-
-    def worst(cfg: RefineConfig) -> float:
-        out = refine_clocks(data, cams, cfg, joints, 1.72, np.random.default_rng(0))
-        return max(abs(c.time_offset - t.time_offset)
-                   for c, t in zip(out, noisy.truth, strict=True))
-
-    assert worst(RefineConfig(time_extra_iterations=0)) > 0.4  # two updates: half a frame each
-    assert worst(RefineConfig()) < 0.1
-
-
 def test_quality_verdicts():
     cfg = RefineConfig()
     cam = make_scene(n_frames=2, n_persons=1).truth.cameras[0]
