@@ -553,8 +553,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", choices=["matrix", "real", "time", "scaling", "poses"],
                     help="one table only (default: all)")
     ap.add_argument("--quick", action="store_true",
-                    help="matrix on terrace, lab_ring, crowd, periodic with 40 s scenes; fewer scaling "
-                    "points")
+                    help="matrix on terrace, lab_ring, crowd, periodic with 40 s scenes; "
+                    "fewer scaling points")
     ap.add_argument("--seeds", type=int, default=1, help="seeds 0..N-1 in the matrix")
     ap.add_argument("--timeout", type=float, default=900.0,
                     help="seconds before one calibration's child process is killed")

@@ -1,4 +1,5 @@
-"""The greedy frame selection (re-scoring only the rows a pick changes) picks what re-scoring every group at every step picks."""
+"""The greedy frame selection (re-scoring only the rows a pick changes) picks what re-scoring
+every group at every step picks."""
 
 from __future__ import annotations
 
