@@ -148,7 +148,14 @@ def _refine(obs: Observations, model: GroundModel, cfg: SingleViewConfig, fit_c:
                   fit_ratios=cfg.refine_upper_ratios, ratio_sd_rel=cfg.upper_ratio_sd,
                   clusters=_clusters(obs, size), image_diag=float(np.hypot(*size)),
                   loss=cfg.loss, ankle_sideways=cfg.ankle_sideways_weight,
-                  height_nuisance=cfg.height_sd > 0, fit_focal=fit_focal)
+                  height_nuisance=cfg.height_sd > 0, fit_focal=fit_focal,
+                  lean_sd=cfg.walking_lean_sd, lean_pivot=_lean_pivot(cfg))
+
+
+def _lean_pivot(cfg: SingleViewConfig) -> float:
+    """Height of the hips above the ankles as a fraction of the shoulders' (column 0)."""
+    r = cfg.joint_height_ratios
+    return (r["hip"] - r["ankle"]) / (r["shoulder"] - r["ankle"])
 
 
 def _initial(o: Observations, c0: F64, f_rng: tuple[float, float], cfg: SingleViewConfig,
@@ -309,7 +316,7 @@ def _finish(obs: Observations, best: RefineResult, fitted_c: bool, size: tuple[i
     diag.update(pitch_deg=pitch, sigma_px=best.sigma_px, confidence_level=cfg.confidence_level,
                 n_inliers=int(inliers.sum()), ratio_scale=best.ratio_scale.tolist(),
                 height_scale=best.height_scale, principal_point_fitted=fitted_c,
-                focal_known=known,
+                focal_known=known, walking_lean=best.lean,
                 ankle_height_m=float(ankle_ratio * np.median(offsets[:, 0] / max(
                     cfg.joint_height_ratios["shoulder"] - ankle_ratio, 1e-9))))
     fit = SingleViewFit(model, best, (float(lo), float(hi)), fitted_c, inliers, rel, px,

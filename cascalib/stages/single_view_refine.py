@@ -1,8 +1,11 @@
 """RANSAC over minimal DLT samples and the nonlinear refinement of focal length and ground plane.
 
 The refinement minimises the pixel distance between observed and predicted upper points
-(shoulder centre, neck, head top) over ``(log f, normal (2 dof), log d [, cx, cy])`` plus, when
-persons are tracked, one log-height per person tied to the assumed height by a Gaussian prior.
+(shoulder centre, neck, head top) over ``(log f, normal (2 dof), log d [, cx, cy] [, lean])``
+plus, when persons are tracked, one log-height per person tied to the assumed height by a
+Gaussian prior. ``lean`` is the walkers' forward lean per unit walking speed: the body above
+the hips tilts forward by ``atan(lean * speed)`` along the ankles' motion (Gaussian prior
+around 0).
 Its Jacobian gives the focal length's confidence interval: the usual ``s^2 (J^T J)^-1`` and a
 cluster-robust sandwich (clusters = persons, or image cells when persons are not tracked, since
 repeated frames of one person at one spot are not independent), whichever is wider.
@@ -145,6 +148,9 @@ class RefineResult:
         Estimated height multiplier per tracked person (1 = the assumed height).
     ratio_scale : ndarray, shape (K,)
         Estimated multiplier of each upper point's offset (column 0 fixed at 1).
+    lean : float
+        Estimated forward lean of walkers (s/m: lean angle per unit walking speed); 0 when not
+        estimated.
     """
 
     model: GroundModel
@@ -155,6 +161,7 @@ class RefineResult:
     cost: float
     height_scale: dict[int, float]
     ratio_scale: F64
+    lean: float = 0.0
 
 
 def _tangent_basis(n: F64) -> tuple[F64, F64]:
@@ -168,7 +175,8 @@ class _Problem:
 
     def __init__(self, obs: Observations, model: GroundModel, fit_c: bool,
                  height_groups: NDArray[np.int64], n_heights: int, prior_w: float,
-                 n_ratios: int, ratio_w: float, c_scale: float, sideways: float) -> None:
+                 n_ratios: int, ratio_w: float, c_scale: float, sideways: float,
+                 lean_w: float = 0.0, lean_pivot: float = 0.0) -> None:
         self.obs, self.n0, self.fit_c = obs, model.n, fit_c
         self.e1, self.e2 = _tangent_basis(model.n)
         self.c0, self.c_scale = model.c, c_scale
@@ -180,7 +188,12 @@ class _Problem:
         self.hg, self.n_h, self.prior_w = height_groups, n_heights, prior_w
         self.n_r, self.ratio_w = n_ratios, ratio_w
         self.valid = obs.valid
-        self.n_base = 5 if fit_c else 4
+        # walkers lean forward (about the hips): one lean per unit walking speed, where the
+        # ankles' motion is known
+        self.fit_lean = lean_w > 0 and obs.motion is not None
+        self.lean_w, self.lean_pivot = lean_w, lean_pivot
+        self.i_lean = 5 if fit_c else 4
+        self.n_base = self.i_lean + (1 if self.fit_lean else 0)
         self.sideways = sideways
         self.along, self.across = body_axes(obs)
         self.w_along = np.ones(obs.upper.shape[:2])
@@ -188,6 +201,8 @@ class _Problem:
     def x0(self, model: GroundModel) -> F64:
         base = [np.log(model.f), 0.0, 0.0, np.log(model.d)]
         if self.fit_c:
+            base += [0.0]
+        if self.fit_lean:
             base += [0.0]
         return np.r_[base, np.zeros(self.n_r + self.n_h)]
 
@@ -214,9 +229,10 @@ class _Problem:
         residual is that of the best ankle, so ankle noise is treated like upper-point noise.
         """
         model, off = self.model(x), self.offsets(x)
+        lean = self.lean(x, model, off)
         ankle = model.corrected_ankles(self.obs, off, sideways=self.sideways,
-                                       along_weight=self.w_along)
-        pred = model.predict_upper(ankle, off)
+                                       along_weight=self.w_along, lean=lean)
+        pred = model.predict_upper(ankle, off, lean)
         da = ankle - self.obs.ankle
         ra = np.stack([np.sum(da * self.along, 1), self.sideways * np.sum(da * self.across, 1)],
                       1)
@@ -224,10 +240,21 @@ class _Problem:
         r = np.r_[ra.ravel(), ru[self.valid].ravel()]
         return np.where(np.isfinite(r), r, _MISS_PX)
 
+    def lean(self, x: F64, model: GroundModel, off: F64) -> F64 | None:
+        """Forward displacement (N, K, 3) of the upper points: the lean per unit speed times
+        the walking velocity times each point's height above the hips (none below them)."""
+        if not self.fit_lean:
+            return None
+        lever = np.clip(off - self.lean_pivot * off[:, :1], 0.0, None)
+        lever = np.where(np.isfinite(lever), lever, 0.0)
+        return x[self.i_lean] * lever[..., None] * model.velocities(self.obs)[:, None, :]
+
     def __call__(self, x: F64) -> F64:
         b, r = self.n_base, self.n_r
-        return np.r_[self.pixel_residuals(x), self.ratio_w * x[b:b + r],
-                     self.prior_w * x[b + r:]]
+        out = [self.pixel_residuals(x), self.ratio_w * x[b:b + r], self.prior_w * x[b + r:]]
+        if self.fit_lean:
+            out.append([self.lean_w * x[self.i_lean]])
+        return np.concatenate(out)
 
     def row_detections(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Detection and upper column (-1: ankle) of every pixel-residual row."""
@@ -240,7 +267,8 @@ class _Problem:
         det, col = self.row_detections()
         n_res = len(det)
         n_extra = self.n_r + self.n_h
-        S = lil_matrix((n_res + n_extra, self.n_base + n_extra), dtype=int)
+        n_lean = 1 if self.fit_lean else 0
+        S = lil_matrix((n_res + n_extra + n_lean, self.n_base + n_extra), dtype=int)
         S[:n_res, : self.n_base] = 1
         rows = np.arange(n_res)
         ratio_rows = col > 0
@@ -251,6 +279,8 @@ class _Problem:
         has = self.hg[det] >= 0
         S[rows[has], self.n_base + self.n_r + self.hg[det][has]] = 1
         S[n_res + np.arange(n_extra), self.n_base + np.arange(n_extra)] = 1
+        if n_lean:
+            S[n_res + n_extra, self.i_lean] = 1
         return S
 
 
@@ -320,7 +350,8 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
            fit_ratios: bool, ratio_sd_rel: float,
            clusters: NDArray[np.int64], image_diag: float, loss: str = "huber",
            f_scale: float = 2.0, max_nfev: int = 100, ankle_sideways: float = 1.0,
-           height_nuisance: bool = False, fit_focal: bool = True) -> RefineResult:
+           height_nuisance: bool = False, fit_focal: bool = True, lean_sd: float = 0.0,
+           lean_pivot: float = 0.0) -> RefineResult:
     """Nonlinear least squares on all inliers (see module docstring).
 
     Parameters
@@ -352,6 +383,11 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     fit_focal : bool
         False holds the focal length at ``model.f`` (known intrinsics): ``log_f_sd`` is then 0
         and only the plane (and heights, ratios) is estimated.
+    lean_sd : float
+        Prior s.d. (s/m) of the walkers' forward lean per unit walking speed, estimated when
+        positive and ``obs.motion`` is given; 0 keeps everyone upright (the paper's model).
+    lean_pivot : float
+        Height of the lean's pivot (the hips) as a fraction of the first upper point's offset.
     """
     hg = np.full(obs.n, -1, dtype=np.int64)
     ids: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
@@ -366,7 +402,9 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     prior_w = max(sigma0, 0.05) / height_sd_rel
     n_r = obs.upper.shape[1] - 1 if fit_ratios else 0
     prob = _Problem(obs, model, fit_principal_point, hg, len(ids), prior_w,
-                    n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag, ankle_sideways)
+                    n_r, max(sigma0, 0.05) / ratio_sd_rel, image_diag, ankle_sideways,
+                    lean_w=max(sigma0, 0.05) / lean_sd if lean_sd > 0 else 0.0,
+                    lean_pivot=lean_pivot)
     if height_nuisance:
         # persons without a height of their own: their unknown height error (relative s.d.
         # height_sd_rel) stretches the residual along the body axis by height_sd_rel * length;
@@ -381,7 +419,7 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
         fitted = replace(fitted, f=model.f)  # exactly, not exp(log f)
     r_px = prob.pixel_residuals(x)
     det, _ = prob.row_detections()
-    clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids))]
+    clus = np.r_[clusters[det], -1 - np.arange(n_r + len(ids) + int(prob.fit_lean))]
     r_all = np.r_[r_px, res.fun[len(r_px):]]
     n_clusters = len(np.unique(clusters)) if len(clusters) else 1
     # with the focal held, the interval that matters is the normal's (reduced columns 0, 1)
@@ -396,4 +434,4 @@ def refine(obs: Observations, model: GroundModel, *, fit_principal_point: bool,
     ratios = np.exp(np.r_[0.0, x[b:b + n_r], np.zeros(obs.upper.shape[1] - 1 - n_r)])
     return RefineResult(fitted, float(sd[0]), c_sd, float(np.degrees(np.hypot(sd[1], sd[2]))),
                         _robust_sigma(r_px), float(np.sum(r_px[np.abs(r_px) < _MISS_PX] ** 2)),
-                        heights, ratios)
+                        heights, ratios, float(x[prob.i_lean]) if prob.fit_lean else 0.0)

@@ -57,12 +57,19 @@ class Observations:
     group : ndarray of int, shape (N,)
         Person (track) of each detection, for shared heights and clustered uncertainty;
         every detection its own group when persons are not tracked.
+    motion : ndarray, shape (N, 2, 2), optional
+        Ankle-centre pixels of the same tracked person ``motion_dt / 2`` before and after
+        (NaN where unknown): the walking velocity, for the forward lean of walkers.
+    motion_dt : ndarray, shape (N,), optional
+        Time (s) between the two pixels of ``motion``.
     """
 
     ankle: F64
     upper: F64
     offset: F64
     group: NDArray[np.int64]
+    motion: F64 | None = None
+    motion_dt: F64 | None = None
 
     @property
     def n(self) -> int:
@@ -75,7 +82,9 @@ class Observations:
 
     def take(self, idx: NDArray[np.int64] | NDArray[np.bool_]) -> Observations:
         """Subset of detections."""
-        return Observations(self.ankle[idx], self.upper[idx], self.offset[idx], self.group[idx])
+        return Observations(self.ankle[idx], self.upper[idx], self.offset[idx], self.group[idx],
+                            None if self.motion is None else self.motion[idx],
+                            None if self.motion_dt is None else self.motion_dt[idx])
 
     def pixel_height(self) -> F64:
         """(N,) pixel height of each person: distance from the ankle to the highest upper point.
@@ -123,10 +132,13 @@ class GroundModel:
         s = np.where(s > 0, s, np.nan)
         return s[..., None] * r
 
-    def predict_upper(self, ankle: F64, offset: F64) -> F64:
-        """Predicted upper pixels (N, K, 2) for ankles (N, 2) and vertical offsets (N, K) in m."""
+    def predict_upper(self, ankle: F64, offset: F64, lean: F64 | None = None) -> F64:
+        """Predicted upper pixels (N, K, 2) for ankles (N, 2) and vertical offsets (N, K) in m;
+        ``lean`` (N, K, 3) adds a horizontal displacement (m, camera coordinates)."""
         A = self.ankle_points(ankle)
         U = A[:, None, :] + offset[..., None] * self.n
+        if lean is not None:
+            U = U + lean
         with np.errstate(invalid="ignore", divide="ignore"):
             z = np.where(U[..., 2] > 1e-9, U[..., 2], np.nan)
             return self.f * U[..., :2] / z[..., None] + self.c
@@ -137,7 +149,7 @@ class GroundModel:
 
     def corrected_ankles(self, obs: Observations, offset: F64 | None = None,
                          eps: float = 0.5, sideways: float = 1.0,
-                         along_weight: F64 | None = None) -> F64:
+                         along_weight: F64 | None = None, lean: F64 | None = None) -> F64:
         """Ankle pixels (N, 2) that best explain ankle *and* upper detections under this model.
 
         The ankle is as noisy as the upper points; predicting the uppers from the raw ankle
@@ -146,18 +158,19 @@ class GroundModel:
         ``|a - a_obs|^2 + sum_k |u_k(a) - u_k_obs|^2``, vectorised, with the 2x2 Jacobians of
         ``u_k(a)`` by central differences of ``eps`` px. ``sideways`` < 1 down-weights the
         ankle's position across the body axis (see :func:`ankle_weights`); ``along_weight``
-        (N, K) scales the upper residuals' components along the body axis.
+        (N, K) scales the upper residuals' components along the body axis; ``lean`` is passed
+        to :meth:`predict_upper`.
         """
         off = obs.offset if offset is None else offset
         valid = obs.valid
-        base = self.predict_upper(obs.ankle, off)
+        base = self.predict_upper(obs.ankle, off, lean)
         r = np.where(valid[..., None], base - obs.upper, 0.0)                   # (N, K, 2)
         D = np.empty(r.shape + (2,))                                           # (N, K, 2, 2)
         for j in range(2):
             step = np.zeros(2)
             step[j] = eps
-            D[..., j] = (self.predict_upper(obs.ankle + step, off)
-                         - self.predict_upper(obs.ankle - step, off)) / (2 * eps)
+            D[..., j] = (self.predict_upper(obs.ankle + step, off, lean)
+                         - self.predict_upper(obs.ankle - step, off, lean)) / (2 * eps)
         D = np.where(valid[..., None, None] & np.isfinite(D), D, 0.0)
         r = np.where(np.isfinite(r), r, 0.0)
         if along_weight is not None:
@@ -169,6 +182,25 @@ class GroundModel:
         g = np.einsum("nkij,nki->nj", D, r)
         delta = -np.linalg.solve(H, g[..., None])[..., 0]
         return obs.ankle + delta
+
+    def velocities(self, obs: Observations) -> F64:
+        """Walking velocity (N, 3) on the ankle plane (m/s, camera coordinates) from
+        ``obs.motion`` (one-sided, from the detection's own ankle, where one end is missing);
+        0 where unknown."""
+        if obs.motion is None or obs.motion_dt is None:
+            return np.zeros((obs.n, 3))
+        P = self.ankle_points(obs.motion)                                      # (N, 2, 3)
+        me = self.ankle_points(obs.ankle)
+        before, after = P[:, 0], P[:, 1]
+        dt = obs.motion_dt.copy()
+        no_b, no_a = ~np.isfinite(before[:, 0]), ~np.isfinite(after[:, 0])
+        before = np.where(no_b[:, None], me, before)
+        after = np.where(no_a[:, None], me, after)
+        dt = np.where(no_b ^ no_a, 0.5 * dt, dt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = (after - before) / dt[:, None]
+        v = v - (v @ self.n)[:, None] * self.n  # on the plane (the points are, up to rounding)
+        return np.where(np.isfinite(v), v, 0.0)
 
     def flipped(self) -> GroundModel:
         return replace(self, n=-self.n)

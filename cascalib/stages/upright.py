@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from cascalib.errors import InputError
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.single_view_solver import Observations
 from cascalib.tracks import Tracks
@@ -156,8 +157,8 @@ class Extracted:
 def extract_observations(tracks: Tracks, mask: NDArray[np.bool_], *,
                          ratios: Mapping[str, float], upper_points: Sequence[str],
                          height: float | Mapping[int, float] | Sequence[float],
-                         default_height: float, min_confidence: float
-                         ) -> Extracted:
+                         default_height: float, min_confidence: float,
+                         motion_s: float = 0.4) -> Extracted:
     """Ankle centres and upper points of the masked detections.
 
     Parameters
@@ -172,6 +173,10 @@ def extract_observations(tracks: Tracks, mask: NDArray[np.bool_], *,
         natively (a neck derived from the shoulders would count the shoulders twice).
     height : float, mapping or sequence
         Stature (m): one for everyone, or per track id.
+    motion_s : float
+        Span (s) of the ankle motion recorded per detection (``obs.motion``): the ankle centre
+        of the same person ``motion_s / 2`` before and after (whole frames), NaN where the
+        person is not found then.
 
     Returns
     -------
@@ -195,5 +200,52 @@ def extract_observations(tracks: Tracks, mask: NDArray[np.bool_], *,
             ok = (np.isfinite(joints[..., 0]) & (joints[..., 2] >= min_confidence)).all(-1)
         upper[ok, k] = joints[ok, :, :2].mean(1)
         offset[ok, k] = stature[ok] * (ratios[name] - ratios["ankle"])
-    obs = Observations(ankle, upper, offset, ids.astype(np.int64))
+    motion, dt = _ankle_motion(tracks, kp, f_idx, p_idx, motion_s)
+    obs = Observations(ankle, upper, offset, ids.astype(np.int64), motion, dt)
     return Extracted(obs, f_idx.astype(np.int64), p_idx.astype(np.int64), stature, tuple(names))
+
+
+def _ankle_motion(tracks: Tracks, kp: F64, f_idx: NDArray[np.int64], p_idx: NDArray[np.int64],
+                  span_s: float) -> tuple[F64, F64]:
+    """Ankle centres (N, 2, 2) of each detection's person ``k`` frames before and after, and
+    the time (s) between them.
+
+    The person there is the detection whose ankle centre is nearest, within half the
+    ankle-to-shoulder length and at most half as far as the next nearest (no track ids needed:
+    detectors rarely give them, and a walker moves a few tens of pixels in ``k`` frames).
+    """
+    try:
+        times: F64 | None = tracks.frame_times()
+    except InputError:  # neither timestamps nor a frame rate: frames of 25 fps
+        times = None
+    fps = tracks.fps or 25.0
+    k = max(1, int(round(0.5 * span_s * fps)))
+    n_frames = kp.shape[0]
+    mid = _mid(kp, "left_ankle", "right_ankle")                                # (F, P, 2)
+    me = mid[f_idx, p_idx]                                                     # (N, 2)
+    size = np.linalg.norm(_mid(kp[f_idx, p_idx], "left_shoulder", "right_shoulder") - me,
+                          axis=-1)
+    motion = np.full((len(f_idx), 2, 2), np.nan)
+    for side, shift in enumerate((-k, k)):
+        g = f_idx + shift
+        rows = np.flatnonzero((g >= 0) & (g < n_frames))
+        cand = mid[g[rows]]                                                    # (n, P, 2)
+        d = np.linalg.norm(cand - me[rows, None], axis=-1)
+        d = np.where(np.isfinite(d), d, np.inf)
+        order = np.argsort(d, axis=1)
+        best = np.take_along_axis(d, order[:, :1], 1)[:, 0]
+        second = (np.take_along_axis(d, order[:, 1:2], 1)[:, 0] if d.shape[1] > 1
+                  else np.full(len(rows), np.inf))
+        with np.errstate(invalid="ignore"):
+            ok = (best < 0.5 * size[rows]) & (best < 0.5 * second)
+        pick = rows[ok]
+        motion[pick, side] = cand[ok, order[ok, 0]]
+    t = np.arange(n_frames) / fps if times is None else np.asarray(times, dtype=np.float64)
+    before, after = f_idx - k, f_idx + k
+    # one end outside the recording: twice the other half (velocities() then halves it)
+    t_b = np.where(before >= 0, t[np.clip(before, 0, None)], np.nan)
+    t_a = np.where(after < n_frames, t[np.clip(after, None, n_frames - 1)], np.nan)
+    t_me = t[f_idx]
+    dt = np.where(np.isfinite(t_b) & np.isfinite(t_a), t_a - t_b,
+                  2 * np.where(np.isfinite(t_a), t_a - t_me, t_me - t_b))
+    return motion, np.where(dt > 0, dt, np.nan)
