@@ -58,8 +58,8 @@ class Observations:
         Person (track) of each detection, for shared heights and clustered uncertainty;
         every detection its own group when persons are not tracked.
     motion : ndarray, shape (N, 2, 2), optional
-        Ankle-centre pixels of the same tracked person ``motion_dt / 2`` before and after
-        (NaN where unknown): the walking velocity, for the forward lean of walkers.
+        Ankle-centre pixels of the same person about ``motion_dt / 2`` before and after (NaN
+        where not found): the walking velocity, for the forward lean of walkers.
     motion_dt : ndarray, shape (N,), optional
         Time (s) between the two pixels of ``motion``.
     """
