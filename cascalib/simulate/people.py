@@ -117,7 +117,7 @@ class Person:
     s: NDArray[np.float64]
     posture: NDArray[np.float64]
     actions: tuple[tuple[float, float, str], ...]
-    trunk_pitch: float = 0.06  # forward trunk lean at full walking speed (rad)
+    trunk_pitch: float  # forward trunk lean at full walking speed (rad)
 
     @property
     def height(self) -> float:
