@@ -192,11 +192,10 @@ class GroundModel:
         P = self.ankle_points(obs.motion)                                      # (N, 2, 3)
         me = self.ankle_points(obs.ankle)
         before, after = P[:, 0], P[:, 1]
-        dt = obs.motion_dt.copy()
         no_b, no_a = ~np.isfinite(before[:, 0]), ~np.isfinite(after[:, 0])
         before = np.where(no_b[:, None], me, before)
         after = np.where(no_a[:, None], me, after)
-        dt = np.where(no_b ^ no_a, 0.5 * dt, dt)
+        dt = np.where(no_b ^ no_a, 0.5 * obs.motion_dt, obs.motion_dt)
         with np.errstate(invalid="ignore", divide="ignore"):
             v = (after - before) / dt[:, None]
         v = v - (v @ self.n)[:, None] * self.n  # on the plane (the points are, up to rounding)

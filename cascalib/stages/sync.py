@@ -403,7 +403,7 @@ def solve_time(n_cams: int, edges: list[tuple[float, ...]], reference: int, *,
         if np.linalg.matrix_rank(A[use][:, free]) < np.linalg.matrix_rank(A[ok][:, free]):
             use = ok
         # the consistent pairs agree to noise level: average them by weighted least squares
-        w_r = np.where(np.isfinite(E[:, 6]), 1.0 / (E[:, 6] ** 2 + 1e-10), w0)[use]
+        w_r = np.where(np.isfinite(sd_r), 1.0 / (sd_r ** 2 + 1e-10), w0)[use]
         w_o = np.where(np.isfinite(E[:, 5]), 1.0 / (E[:, 5] ** 2 + 1e-4), w0)[use]
         Ak = A[use][:, free]
         log_a[free] = _wlstsq(Ak, E[use, 3], w_r)
