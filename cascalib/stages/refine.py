@@ -466,7 +466,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     for _ in range(cfg.time_iterations):
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
-                             step=cfg.time_step_frames, max_groups=cfg.time_groups, rng=rng)
+                             max_groups=cfg.time_groups, rng=rng)
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
                  "kept" if new_cost < cost else "rejected")

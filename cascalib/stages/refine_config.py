@@ -155,9 +155,11 @@ class RefineConfig(BaseModel):
         2, ge=1, description="Offset updates (each after a re-association) after each round.")
     time_search_frames: float = Field(
         1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
-    time_step_frames: float = Field(0.05, gt=0, description="Grid step of that search.")
+    time_step_frames: float = Field(
+        0.05, gt=0, description="Unused since the offset search solves its normal equation "
+        "(to 0.001 frame) instead of scanning a grid; kept so that existing settings load.")
     time_groups: int = Field(
-        1500, ge=10, description="Person-frames (a random subset) on which each camera's offset "
+        6000, ge=10, description="Person-frames (a random subset) on which each camera's offset "
         "is searched.")
     time_check_frames: int = Field(
         800, ge=50, description="Reference frames (evenly spread) on which an offset update is "

@@ -168,6 +168,30 @@ def test_time_offsets_recovered(scene):
     assert max(err) < 0.1
 
 
+def test_clock_search_uses_every_moving_joint():
+    """From the true clocks and geometry, one offset update stays within 0.03 frame.
+
+    Six persons, 3 px of detection noise. The search once took the minimum of a truncated mean of
+    per-person median distances on a grid of offsets: 0.04-0.07 frame off here (0.3 on a
+    simulated crowd). The normal equation weighs every joint by how fast it moves.
+    """
+    from cascalib.stages.refine import _check_times
+    cfg = RefineConfig()
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    worst = 0.0
+    for seed in (0, 2):
+        sc = make_scene(n_frames=200, n_persons=6, noise_px=3.0, offsets=(0, 0.3, -0.4, 0.2),
+                        seed=seed)
+        data = _check_times(_prepare(sc.tracks, sc.truth), cfg)
+        cams = list(sc.truth)
+        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
+                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
+        out = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+        worst = max(worst, *(abs(c.time_offset - t.time_offset)
+                             for c, t in zip(out, sc.truth, strict=True)))
+    assert worst < 0.03, worst
+
+
 def test_clock_search_is_not_pulled_between_frames():
     """With the true geometry and noisy detections the sub-frame search stays at the truth.
 
