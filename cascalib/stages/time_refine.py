@@ -86,15 +86,20 @@ def track_velocity(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     n_f = keypoints.shape[0]
     k = np.floor(frames).astype(np.int64)
     w = (frames - k)[:, None, None]
-    at = {}
-    for steps in (-2, -1, 2, 3):
-        kk, pp = _follow(links, prev, k, slots, steps)
+
+    def at(kk: NDArray[np.int64], pp: NDArray[np.int64]) -> NDArray[np.float64]:
         ok = (pp >= 0) & (kk >= 0) & (kk < n_f)
         x = np.full((k.size,) + keypoints.shape[2:], np.nan)
         x[ok] = keypoints[kk[ok], pp[ok]]
-        at[steps] = x
-    before = at[-2] + w * (at[-1] - at[-2])
-    after = at[2] + w * (at[3] - at[2])
+        return x
+
+    # each frame from its neighbour along the links: four steps back and forth, not eight
+    back1 = _follow(links, prev, k, slots, -1)
+    back2 = _follow(links, prev, *back1, -1)
+    ahead2 = _follow(links, prev, k, slots, 2)
+    ahead3 = _follow(links, prev, *ahead2, 1)
+    before = at(*back2) + w * (at(*back1) - at(*back2))
+    after = at(*ahead2) + w * (at(*ahead3) - at(*ahead2))
     return (after - before) / 4.0
 
 
