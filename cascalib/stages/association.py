@@ -457,43 +457,75 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
 
 
 # -- 3. tracks over time ---------------------------------------------------------------------------
-def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0) -> Association:
+def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0,
+                alpha: float = 0.4) -> Association:
     """Link groups of nearby reference times into person tracks by ground position.
+
+    Each live track predicts where its person is now from a position and a velocity (an
+    alpha-beta filter: the least-squares line through its first points, then the fixed gains
+    ``alpha`` and ``beta = alpha**2 / (2 - alpha)``, Benedict and Bordner's choice); the groups
+    of a reference time are matched to the predictions with the Hungarian algorithm. Walkers
+    who cross are then followed by their headings, where the last positions alone swapped them.
+    Measured at the true cameras of 40 s simulator scenes, the share of person-frames that are
+    in a track of mostly their own person went 0.92 -> 0.98 and 0.91 -> 0.98 (terrace seeds 2
+    and 0), 0.72 -> 0.97 (people walking circles), 0.94 -> 0.95 (crowd), but 0.82 -> 0.75 on
+    a lab ring. Two people passing close can still swap: stage V cuts its tracks where the
+    person's size jumps (:func:`cascalib.stages.refine.split_by_size`).
 
     Parameters
     ----------
     gate_m : float
-        Largest ground displacement (metres) between linked groups.
+        Largest distance (metres) between a group and a track's predicted position.
     max_gap : float
         Largest time gap (reference frames) bridged.
+    alpha : float
+        Steady-state position gain of the filter (0-1; higher follows turns faster).
     """
     n = assoc.n_groups
     tracks = np.full(n, -1, dtype=np.int64)
     if n == 0:
         return assoc
+    beta = alpha**2 / (2 - alpha)
     order = np.argsort(assoc.times, kind="stable")
     uniq, starts = np.unique(assoc.times[order], return_index=True)
     groups = np.split(order, starts[1:])
     next_id = 0
-    last_pos: dict[int, tuple[float, NDArray[np.float64]]] = {}
+    # live tracks: id -> [last time, position, velocity (m per reference frame), updates]
+    live: dict[int, list] = {}
     for t, idx in zip(uniq, groups, strict=True):
         # tracks silent for longer than max_gap can never be linked again: forget them, so
         # each time looks only at the few live tracks (not at every track ever started)
-        for k in [k for k, (tl, _) in last_pos.items() if t - tl > max_gap]:
-            del last_pos[k]
-        live = list(last_pos)
-        if live:
-            prev = np.array([last_pos[k][1] for k in live])
-            cost = np.linalg.norm(assoc.ground[idx, None] - prev[None], axis=-1)
-            r, q = linear_sum_assignment(np.nan_to_num(cost, nan=1e9))
+        for k in [k for k, st in live.items() if t - st[0] > max_gap]:
+            del live[k]
+        ids = list(live)
+        g = assoc.ground[idx]
+        if ids:
+            pred = np.array([live[k][1] + live[k][2] * (t - live[k][0]) for k in ids])
+            cost = np.nan_to_num(np.linalg.norm(g[:, None] - pred[None], axis=-1), nan=1e9)
+            r, q = linear_sum_assignment(cost)
             for i, k in zip(r, q, strict=True):
                 if cost[i, k] < gate_m:
-                    tracks[idx[i]] = live[k]
-        for i in idx:
+                    tracks[idx[i]] = ids[k]
+        for i, gi in zip(idx, g, strict=True):
+            if not np.isfinite(gi).all():
+                continue
             if tracks[i] < 0:
                 tracks[i] = next_id
+                live[next_id] = [float(t), gi.copy(), np.zeros(2), 0]
                 next_id += 1
-            last_pos[int(tracks[i])] = (float(t), assoc.ground[i])
+                continue
+            st = live[int(tracks[i])]
+            dt = float(t) - st[0]
+            st[3] += 1
+            m = st[3] + 1  # points in the track so far
+            # the least-squares line's gains while the track is young, then the steady ones
+            a = max(alpha, 2 * (2 * m - 1) / (m * (m + 1)))
+            b = max(beta, 6 / (m * (m + 1)))
+            p = st[1] + st[2] * dt
+            res = gi - p
+            st[0], st[1], st[2] = float(t), p + a * res, st[2] + b * res / max(dt, 1e-9)
+    lone = tracks < 0  # groups without a ground position
+    tracks[lone] = next_id + np.arange(lone.sum())
     return Association(assoc.times, assoc.obs, tracks, assoc.ground, assoc.residual)
 
 
