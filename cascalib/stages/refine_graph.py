@@ -24,7 +24,7 @@ call inside gtsam's optimisers, which grows with the square of the problem):
 * ``PriorFactorPoint3`` on the head top of upright persons, precision on z only: the height prior
   -- fixes the metric scale (the average over persons, sd ``height_sd / sqrt(n_persons)``);
 * ``RangeFactor3`` on bones: constant bone length over a track and left/right symmetry, both to the
-  per-track median of the previous round;
+  per-track median triangulated with the previous round's cameras;
 * ``PriorFactorPose3`` on the reference camera with a full covariance that is tight on its yaw and
   x, y in the *world* frame and loose on tilt and height: fixes the world's yaw and origin.
 """

@@ -282,3 +282,48 @@ def test_bone_targets_pool_left_right_per_track():
     assert t[1][classes[0]] == pytest.approx(0.50)
     few = bone_targets(pts[:2], tracks[:2], bones, classes, min_samples=5)
     assert np.isnan(few[0]).all()
+
+
+def _sized_groups(scales: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Thighs and shanks (left and right) of groups of the given body scales, 1.5 % length
+    noise per bone; returns points, bones and classes."""
+    from cascalib.stages.refine import _bones
+    names = ("left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle")
+    bones, classes = _bones(names)
+    rng = np.random.default_rng(seed)
+    n = len(scales)
+    pts = np.zeros((n, 6, 3))
+    for side in (0, 3):
+        thigh = 0.42 * scales * (1 + rng.normal(0, 0.015, n))
+        shank = 0.41 * scales * (1 + rng.normal(0, 0.015, n))
+        pts[:, side + 1, 2] = -thigh
+        pts[:, side + 2, 2] = -thigh - shank
+    return pts, bones, classes
+
+
+def test_split_by_size_cuts_a_track_where_it_jumped_to_another_person():
+    """A track follows a person for 100 groups, then (a swap when two people passed) one 4 %
+    taller: it is cut there, and each piece is one person. A person whose size drifts slowly by
+    6 % (a camera's residual error along the floor) is not cut."""
+    from cascalib.stages.refine import split_by_size
+    scales = np.r_[np.ones(100), np.full(100, 1.04), np.linspace(1.0, 1.06, 300)]
+    pts, bones, classes = _sized_groups(scales)
+    tracks = np.r_[np.zeros(200, np.int64), np.ones(300, np.int64)]
+    times = np.r_[np.arange(200), np.arange(300)].astype(float)
+    out = split_by_size(pts, tracks, times, bones, classes, join=False)
+    assert len(np.unique(out[:100])) == 1 and len(np.unique(out[100:200])) == 1
+    assert out[0] != out[150]
+    assert len(np.unique(out[200:])) == 1
+
+
+def test_split_by_size_rejoins_pieces_of_one_person():
+    """Pieces of the same size that never overlap in time get one label (one person before and
+    after an encounter); a person of another size seen at the same time stays apart."""
+    from cascalib.stages.refine import split_by_size
+    scales = np.r_[np.ones(100), np.full(200, 1.06), np.ones(100)]
+    pts, bones, classes = _sized_groups(scales, seed=1)
+    tracks = np.r_[np.zeros(100), np.ones(200), np.full(100, 2)].astype(np.int64)
+    times = np.r_[np.arange(100), np.arange(200), np.arange(150, 250)].astype(float)
+    out = split_by_size(pts, tracks, times, bones, classes)
+    assert out[0] == out[-1]
+    assert out[100] != out[0]
