@@ -470,7 +470,7 @@ def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0
     in a track of mostly their own person went 0.92 -> 0.98 and 0.91 -> 0.98 (terrace seeds 2
     and 0), 0.72 -> 0.97 (people walking circles), 0.94 -> 0.95 (crowd), but 0.82 -> 0.75 on
     a lab ring. Two people passing close can still swap: stage V cuts its tracks where the
-    person's size jumps (:func:`cascalib.stages.refine.split_by_size`).
+    person's size jumps (:func:`cascalib.stages.person_size.split_by_size`).
 
     Parameters
     ----------

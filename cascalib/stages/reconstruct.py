@@ -11,7 +11,7 @@ Huber), link the persons over time (and across gaps), and scatter the result int
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +20,7 @@ from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError
 from cascalib.poses import Poses3D
+from cascalib.skeletons import CANONICAL_JOINTS
 from cascalib.stages.association import (
     Association,
     associate,
@@ -27,6 +28,7 @@ from cascalib.stages.association import (
     interpolate_views,
     stitch_tracks,
 )
+from cascalib.stages.person_size import bone_pairs, split_by_size
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.triangulation import triangulate
 from cascalib.tracks import Tracks
@@ -155,7 +157,10 @@ def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, hei
                       consistency=cfg.consistency_refined)
     assoc = stitch_tracks(assoc, fps=data.fps)
     points, err = triangulate_groups(assoc, cameras, np.arange(26))
-    return assoc, points, err
+    # stitching and linking can swap two people who pass close: cut where the size jumps
+    bones, classes = bone_pairs(CANONICAL_JOINTS)
+    tracks = split_by_size(points, assoc.tracks, assoc.times, bones, classes, join=False)
+    return replace(assoc, tracks=tracks), points, err
 
 
 def match_calibration(tracks: list[Tracks], calibration: Calibration) -> Calibration:

@@ -19,7 +19,6 @@ Cascade of one call to :func:`refine`::
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 
@@ -34,6 +33,7 @@ from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups, usable_groups
+from cascalib.stages.person_size import bone_pairs, split_by_size
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import (
     SessionData,
@@ -60,21 +60,6 @@ from cascalib.tracks import Tracks
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
 
 log = logging.getLogger(__name__)
-
-#: Bone classes of the length terms: a left/right pair shares one target (symmetry).
-BONE_CLASSES: tuple[tuple[tuple[str, str], ...], ...] = (
-    (("left_shoulder", "left_elbow"), ("right_shoulder", "right_elbow")),
-    (("left_elbow", "left_wrist"), ("right_elbow", "right_wrist")),
-    (("left_hip", "left_knee"), ("right_hip", "right_knee")),
-    (("left_knee", "left_ankle"), ("right_knee", "right_ankle")),
-    (("left_ankle", "left_heel"), ("right_ankle", "right_heel")),
-    (("left_ankle", "left_big_toe"), ("right_ankle", "right_big_toe")),
-    (("neck", "left_shoulder"), ("neck", "right_shoulder")),
-    (("mid_hip", "left_hip"), ("mid_hip", "right_hip")),
-    (("neck", "mid_hip"),),
-    (("neck", "head_top"),),
-)
-
 
 @dataclass(frozen=True)
 class RefineResult:
@@ -125,18 +110,6 @@ class RefineResult:
 
 
 
-def _bones(names: tuple[str, ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Bone joint pairs (indices into ``names``) and their class, for bones fully in ``names``."""
-    pos = {n: i for i, n in enumerate(names)}
-    pairs, cls = [], []
-    for k, bone_class in enumerate(BONE_CLASSES):
-        for a, b in bone_class:
-            if a in pos and b in pos:
-                pairs.append((pos[a], pos[b]))
-                cls.append(k)
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2), np.array(cls, dtype=np.int64)
-
-
 def bone_targets(points: NDArray[np.float64], tracks: NDArray[np.int64], bones: NDArray[np.int64],
                  classes: NDArray[np.int64], *, min_samples: int = 3) -> dict[int, NDArray]:
     """Per-track median length of each bone class (left and right pooled).
@@ -167,106 +140,6 @@ def bone_targets(points: NDArray[np.float64], tracks: NDArray[np.int64], bones: 
     return out
 
 
-def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
-                  times: NDArray[np.float64], bones: NDArray[np.int64],
-                  classes: NDArray[np.int64], *, window: int = 15,
-                  threshold: float = 6.0, join: bool = True) -> NDArray[np.int64]:
-    """Cut person tracks where the person's size jumps: where the track went on with another
-    person (two people passing close), unless the two are of a size.
-
-    A group's size is the median over its bones of the length relative to the median of the
-    bone's class over all groups. Along each track (in time order) the median size of the
-    ``window`` groups after each point is compared with that of the ``window`` before; the
-    track is cut at each local maximum of the step that exceeds ``threshold`` standard errors
-    (noise from the differences of consecutive sizes). Only a jump within a few frames counts:
-    a camera's residual error makes a person's size drift slowly along the floor, and cutting
-    there would tie the bone lengths only locally, which keeps that error instead of
-    correcting it.
-
-    Returns
-    -------
-    ndarray of int, shape (G,)
-        New track labels (the pieces of a track after the first get new numbers).
-    """
-    lengths = np.linalg.norm(points[:, bones[:, 0]] - points[:, bones[:, 1]], axis=-1)  # (G, B)
-    with warnings.catch_warnings():  # all-NaN classes and groups stay NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        ref = np.array([np.nanmedian(lengths[:, classes == k]) for k in range(classes.max() + 1)])
-        size = np.nanmedian(lengths / ref[classes], axis=1)
-    out = tracks.copy()
-    next_id = int(tracks.max()) + 1 if tracks.size else 0
-    for tr in np.unique(tracks[tracks >= 0]):
-        idx = np.flatnonzero((tracks == tr) & np.isfinite(size))
-        idx = idx[np.argsort(times[idx], kind="stable")]
-        n = idx.size
-        if n < 2 * window:
-            continue
-        s = size[idx]
-        d = np.diff(s)
-        sd = 1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2)
-        if not sd > 0:
-            continue
-        win = np.lib.stride_tricks.sliding_window_view(s, window)  # win[j] = s[j:j + window]
-        med = np.median(win, axis=1)
-        i = np.arange(window, n - window + 1)  # cut before point i
-        # a median of w noisy values has a standard error of about 1.25 sd / sqrt(w)
-        z = np.abs(med[i] - med[i - window]) / (1.25 * sd * np.sqrt(2 / window))
-        cuts = []
-        for k in np.argsort(-z):
-            if z[k] < threshold:
-                break
-            if all(abs(i[k] - c) >= window for c in cuts):
-                cuts.append(int(i[k]))
-        for lo in sorted(cuts):
-            out[idx[lo:]] = next_id  # later cuts relabel their tail again
-            next_id += 1
-    return _join_by_size(out, times, size, window, threshold) if join else out
-
-
-def _join_by_size(tracks: NDArray[np.int64], times: NDArray[np.float64], size: NDArray[np.float64],
-                  min_groups: int, threshold: float) -> NDArray[np.int64]:
-    """Give pieces of track that never overlap in time and whose median sizes agree within
-    ``threshold`` standard errors one label (longest pieces first): a person's bone lengths are
-    then tied over the whole sequence, not only between two encounters."""
-    ok = (tracks >= 0) & np.isfinite(size)
-    ids, inv, counts = np.unique(tracks[ok], return_inverse=True, return_counts=True)
-    members = np.split(np.argsort(inv, kind="stable"), np.cumsum(counts)[:-1])
-    s_ok = size[ok]
-    t_all = np.unique(times)
-    labels: list[int] = []  # per person: label, median size, standard error, times seen
-    p_size: list[float] = []
-    p_se: list[float] = []
-    p_seen: list[NDArray[np.bool_]] = []
-    relabel: dict[int, int] = {}
-    for j in np.argsort(-counts, kind="stable"):
-        if counts[j] < min_groups:
-            break
-        v = s_ok[members[j]]
-        seen = np.zeros(t_all.size, dtype=bool)
-        seen[np.searchsorted(t_all, times[tracks == ids[j]])] = True
-        med = float(np.median(v))
-        se = max(1.4826 * float(np.median(np.abs(v - med))), 1e-6) / np.sqrt(v.size)
-        if labels:
-            z = np.abs(np.array(p_size) - med) / np.hypot(np.array(p_se), se)
-            for q in np.argsort(z):
-                if z[q] >= threshold:
-                    break
-                if not (p_seen[q] & seen).any():
-                    relabel[int(ids[j])] = labels[q]
-                    p_seen[q] |= seen
-                    break
-            if int(ids[j]) in relabel:
-                continue
-        labels.append(int(ids[j]))
-        p_size.append(med)
-        p_se.append(se)
-        p_seen.append(seen)
-    out = tracks.copy()
-    for k, lab in relabel.items():
-        out[tracks == k] = lab
-    return out
-
-
 def head_joint(points: NDArray[np.float64], names: tuple[str, ...]) -> str | None:
     """The head keypoint that carries the height prior: the first of
     :data:`HEAD_HEIGHT_FRACTIONS` (head top first) that is in ``names`` and reconstructed in at
@@ -285,7 +158,7 @@ def _track_targets(assoc: Association, cameras: list[Camera], cfg: RefineConfig,
     ``cameras`` (solved, so that the height prior has set their scale) and rescaled to the
     height prior, so that the bone terms never pin a scale it disagrees with."""
     pts, _ = triangulate_groups(assoc, cameras, joints)
-    bones, classes = _bones(tuple(cfg.joints))
+    bones, classes = bone_pairs(tuple(cfg.joints))
     tracks = split_by_size(pts, assoc.tracks, assoc.times, bones, classes)
     targets = bone_targets(pts, tracks, bones, classes)
     k = _height_scale(pts, tuple(cfg.joints), cfg, height)
@@ -345,7 +218,7 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
     # median of a 2D error norm is 1.18 sigma (chi, 2 dof)
     sigma = max(cfg.sigma_px, float(np.median(e)) / 1.18 if e.size else 0.0)
     stance, head = _foot_and_head(points, names, cfg)
-    bones, classes = _bones(names)
+    bones, classes = bone_pairs(names)
     lengths = np.full((assoc.n_groups, len(bones)), np.nan)
     if targets and cfg.use_bones:
         for s, tr in enumerate(assoc.tracks):

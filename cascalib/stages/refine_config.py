@@ -120,7 +120,7 @@ class RefineConfig(BaseModel):
         True, description="Left/right symmetry and constant bone length over each track, as "
         "RangeFactor3 terms to per-track medians triangulated with the previous round's cameras "
         "(paper: L_left,right); tracks are cut where the person's size jumps (a swap of two "
-        "people) and pieces of one size rejoined (refine.split_by_size).")
+        "people) and pieces of one size rejoined (person_size.split_by_size).")
     bone_sigma_m: float = Field(0.015, gt=0, description="Bone-length noise (m).")
 
     # -- gauge -------------------------------------------------------------------------------------

@@ -267,9 +267,10 @@ def test_refine_end_to_end_small():
 
 
 def test_bone_targets_pool_left_right_per_track():
-    from cascalib.stages.refine import _bones, bone_targets
+    from cascalib.stages.person_size import bone_pairs
+    from cascalib.stages.refine import bone_targets
     names = ("left_hip", "left_knee", "right_hip", "right_knee")
-    bones, classes = _bones(names)
+    bones, classes = bone_pairs(names)
     assert len(bones) == 2 and classes[0] == classes[1]
     pts = np.zeros((6, 4, 3))
     pts[:, 1, 2] = -0.40  # left thigh 0.40 m
@@ -287,9 +288,9 @@ def test_bone_targets_pool_left_right_per_track():
 def _sized_groups(scales: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Thighs and shanks (left and right) of groups of the given body scales, 1.5 % length
     noise per bone; returns points, bones and classes."""
-    from cascalib.stages.refine import _bones
+    from cascalib.stages.person_size import bone_pairs
     names = ("left_hip", "left_knee", "left_ankle", "right_hip", "right_knee", "right_ankle")
-    bones, classes = _bones(names)
+    bones, classes = bone_pairs(names)
     rng = np.random.default_rng(seed)
     n = len(scales)
     pts = np.zeros((n, 6, 3))
@@ -305,7 +306,7 @@ def test_split_by_size_cuts_a_track_where_it_jumped_to_another_person():
     """A track follows a person for 100 groups, then (a swap when two people passed) one 4 %
     taller: it is cut there, and each piece is one person. A person whose size drifts slowly by
     6 % (a camera's residual error along the floor) is not cut."""
-    from cascalib.stages.refine import split_by_size
+    from cascalib.stages.person_size import split_by_size
     scales = np.r_[np.ones(100), np.full(100, 1.04), np.linspace(1.0, 1.06, 300)]
     pts, bones, classes = _sized_groups(scales)
     tracks = np.r_[np.zeros(200, np.int64), np.ones(300, np.int64)]
@@ -319,7 +320,7 @@ def test_split_by_size_cuts_a_track_where_it_jumped_to_another_person():
 def test_split_by_size_rejoins_pieces_of_one_person():
     """Pieces of the same size that never overlap in time get one label (one person before and
     after an encounter); a person of another size seen at the same time stays apart."""
-    from cascalib.stages.refine import split_by_size
+    from cascalib.stages.person_size import split_by_size
     scales = np.r_[np.ones(100), np.full(200, 1.06), np.ones(100)]
     pts, bones, classes = _sized_groups(scales, seed=1)
     tracks = np.r_[np.zeros(100), np.ones(200), np.full(100, 2)].astype(np.int64)
