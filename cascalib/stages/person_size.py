@@ -117,8 +117,9 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
                 break
             if all(abs(i[k] - c) >= window for c in cuts):
                 cuts.append(int(i[k]))
+        whole = tracks == tr  # groups without a size go with the piece of their time
         for lo in sorted(cuts):
-            out[idx[lo:]] = next_id  # later cuts relabel their tail again
+            out[whole & (times >= times[idx[lo]])] = next_id  # later cuts relabel their tail
             next_id += 1
     return _join_by_size(out, times, size, window, threshold) if join else out
 

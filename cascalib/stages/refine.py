@@ -153,16 +153,17 @@ def head_joint(points: NDArray[np.float64], names: tuple[str, ...]) -> str | Non
 
 def _track_targets(assoc: Association, cameras: list[Camera], cfg: RefineConfig,
                    joints: NDArray[np.int64], height: float
-                   ) -> tuple[NDArray[np.int64], dict[int, NDArray]]:
-    """Bone-length targets of the tracks of ``assoc`` (:func:`bone_targets`), triangulated with
+                   ) -> tuple[Association, dict[int, NDArray]]:
+    """``assoc`` with its tracks cut where the person's size jumps (:func:`split_by_size`), and
+    the bone-length targets of those tracks (:func:`bone_targets`), triangulated with
     ``cameras`` (solved, so that the height prior has set their scale) and rescaled to the
     height prior, so that the bone terms never pin a scale it disagrees with."""
     pts, _ = triangulate_groups(assoc, cameras, joints)
     bones, classes = bone_pairs(tuple(cfg.joints))
-    tracks = split_by_size(pts, assoc.tracks, assoc.times, bones, classes)
-    targets = bone_targets(pts, tracks, bones, classes)
+    person = split_by_size(pts, assoc.tracks, assoc.times, bones, classes)
+    targets = bone_targets(pts, person, bones, classes)
     k = _height_scale(pts, tuple(cfg.joints), cfg, height)
-    return tracks, {tr: v * k for tr, v in targets.items()}
+    return replace(assoc, tracks=person), {tr: v * k for tr, v in targets.items()}
 
 
 def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: RefineConfig
@@ -538,8 +539,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         step()
         if cfg.use_bones and refined:
             # track numbers are this association's own: the targets must come from it too
-            tracks, targets = _track_targets(assoc, cameras, cfg, joints, height)
-            assoc = replace(assoc, tracks=tracks)
+            assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
         sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
                             floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
         kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
@@ -549,8 +549,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         solves.append(info)
         step()
         if cfg.use_bones and r == n_rounds - 1:  # for the intrinsics passes (same association)
-            tracks, targets = _track_targets(assoc, cameras, cfg, joints, height)
-            assoc = replace(assoc, tracks=tracks)
+            assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
         if cfg.refine_time:  # after the last round too: the final association uses it
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
         step()
