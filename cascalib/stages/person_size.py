@@ -21,6 +21,7 @@ import warnings
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import median_abs_deviation
 
 __all__ = ["BONE_CLASSES", "bone_pairs", "split_by_size"]
 
@@ -96,14 +97,14 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
     out = tracks.copy()
     next_id = int(tracks.max()) + 1 if tracks.size else 0
     for tr in np.unique(tracks[tracks >= 0]):
-        idx = np.flatnonzero((tracks == tr) & np.isfinite(size))
+        whole = tracks == tr  # groups without a size go with the piece of their time
+        idx = np.flatnonzero(whole & np.isfinite(size))
         idx = idx[np.argsort(times[idx], kind="stable")]
         n = idx.size
         if n < 2 * window:
             continue
         s = size[idx]
-        d = np.diff(s)
-        sd = 1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2)
+        sd = median_abs_deviation(np.diff(s), scale="normal") / np.sqrt(2)
         if not sd > 0:
             continue
         win = np.lib.stride_tricks.sliding_window_view(s, window)  # win[j] = s[j:j + window]
@@ -117,7 +118,6 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
                 break
             if all(abs(i[k] - c) >= window for c in cuts):
                 cuts.append(int(i[k]))
-        whole = tracks == tr  # groups without a size go with the piece of their time
         for lo in sorted(cuts):
             out[whole & (times >= times[idx[lo]])] = next_id  # later cuts relabel their tail
             next_id += 1
@@ -146,7 +146,7 @@ def _join_by_size(tracks: NDArray[np.int64], times: NDArray[np.float64], size: N
         seen = np.zeros(t_all.size, dtype=bool)
         seen[np.searchsorted(t_all, times[tracks == ids[j]])] = True
         med = float(np.median(v))
-        se = max(1.4826 * float(np.median(np.abs(v - med))), 1e-6) / np.sqrt(v.size)
+        se = max(float(median_abs_deviation(v, scale="normal")), 1e-6) / np.sqrt(v.size)
         if labels:
             z = np.abs(np.array(p_size) - med) / np.hypot(np.array(p_se), se)
             for q in np.argsort(z):
