@@ -33,6 +33,7 @@ from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups, usable_groups
+from cascalib.stages.keypoint_noise import size_noise_scale, triangulation_weights
 from cascalib.stages.person_size import bone_pairs, split_by_size
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import (
@@ -214,9 +215,15 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
     # a joint is a variable only with two usable observations: drop weak ones before triangulating
     obs[np.nan_to_num(obs[..., 2]) < cfg.min_confidence] = np.nan
     assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground, assoc.residual)
-    points, err = triangulate_groups(assoc, cameras, joints)
+    huber_px = 4.0
+    points, err = triangulate_groups(assoc, cameras, joints, huber_px=huber_px)
+    scale = None
+    if cfg.size_noise:
+        w = triangulation_weights(err, obs[:, :, joints, 2], huber_px)
+        scale = size_noise_scale(err, points, cameras, w, height)
+        err = err / scale[..., None]
     e = err[np.isfinite(err)]
-    # median of a 2D error norm is 1.18 sigma (chi, 2 dof)
+    # median of a 2D error norm is 1.18 sigma (chi, 2 dof); relative to each view's noise
     sigma = max(cfg.sigma_px, float(np.median(e)) / 1.18 if e.size else 0.0)
     stance, head = _foot_and_head(points, names, cfg)
     bones, classes = bone_pairs(names)
@@ -231,7 +238,7 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
         graph_cams[c], obs[:, c, :, :2] = ideal_pinhole(cameras[c], obs[:, c, :, :2])
     return GraphProblem(graph_cams, obs, names, points, stance, head, bones, lengths, reference,
                         model, height, n_persons, sigma,  # type: ignore[arg-type]
-                        {c: cameras[c] for c in fixed})
+                        {c: cameras[c] for c in fixed}, scale)
 
 
 def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray[np.float64]]:
@@ -267,6 +274,8 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
         proj = np.stack([(prob.cameras[c].with_(R=cam.R, t=cam.t) if c in prob.fixed else cam)
                          .project(points) for c, cam in enumerate(cameras)], axis=1)  # (S,C,J,2)
         err = norm_xy(proj - prob.obs[..., :2])
+        if prob.noise_scale is not None:
+            err = err / prob.noise_scale[..., None]
         e = err[np.isfinite(err)]
         prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
     return cameras, points, info, graph, values

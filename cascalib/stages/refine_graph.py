@@ -86,6 +86,9 @@ class GraphProblem:
         Keypoint noise (px) at confidence 1 for this solve: from a poor start it is raised to the
         spread of the initial residuals so they stay in the kernel's quadratic zone (graduated
         robustness; a Huber kernel far beyond its knee has no curvature to pull cameras back).
+    noise_scale : ndarray, shape (S, C), optional
+        Relative keypoint noise of each view (the person's size in the image,
+        :mod:`cascalib.stages.keypoint_noise`); None: 1 for every view.
     fixed : dict of int to Camera
         Cameras whose intrinsics are known, as given (only their K and distortion are used).
         Their ``obs`` are already undistorted to the ideal square-pixel pinhole that ``cameras``
@@ -107,6 +110,7 @@ class GraphProblem:
     n_persons: int
     sigma_px: float
     fixed: dict[int, Camera] = field(default_factory=dict)
+    noise_scale: NDArray[np.float64] | None = None
 
     @property
     def n_joints(self) -> int:
@@ -127,19 +131,28 @@ def _robust(kernel: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseMo
 
 def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                       cfg: RefineConfig) -> int:
-    """Reprojection factors; the noise models are shared per confidence level (1/20 steps)."""
+    """Reprojection factors; the noise models are shared per confidence level (1/20 steps) and
+    per relative view noise (steps of 5 %)."""
     factor = {"f": gtsam.GeneralSFMFactor2Cal3f, "s2": gtsam.GeneralSFMFactor2Cal3_S2,
               "ds2": gtsam.GeneralSFMFactor2Cal3DS2}[prob.model]
     keys = prob.point_keys()
     conf = prob.obs[..., 2]
     ok = (keys[:, None, :] >= 0) & np.isfinite(prob.obs[..., 0]) & (conf >= cfg.min_confidence)
     level = np.clip(np.round(np.nan_to_num(conf) * 20), 1, 20).astype(int)
-    models = {lv: _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
-        2, prob.sigma_px / np.sqrt(lv / 20.0))) for lv in range(1, 21)}
     s_i, c_i, j_i = np.nonzero(ok)
+    step = np.log(1.05)
+    size = np.zeros(len(s_i), dtype=int)
+    if prob.noise_scale is not None:
+        size = np.round(np.log(prob.noise_scale[s_i, c_i]) / step).astype(int)
+    models: dict[tuple[int, int], gtsam.noiseModel.Base] = {}
+    for key in set(zip(level[s_i, c_i, j_i].tolist(), size.tolist(), strict=True)):
+        lv, k = key
+        models[key] = _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
+            2, prob.sigma_px * np.exp(k * step) / np.sqrt(lv / 20.0)))
     # everything per factor precomputed as Python objects: the loop only builds factors
     uv = list(prob.obs[s_i, c_i, j_i, :2])
-    noise = [models[lv] for lv in level[s_i, c_i, j_i].tolist()]
+    noise = [models[key] for key in zip(level[s_i, c_i, j_i].tolist(), size.tolist(),
+                                          strict=True)]
     points = (keys[s_i, j_i].astype(np.uint64) + np.uint64(P(0))).tolist()  # P(k) = P(0) + k
     poses = [X(c) for c in range(len(prob.cameras))]
     cals = [K(c) for c in range(len(prob.cameras))]
