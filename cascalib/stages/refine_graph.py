@@ -144,15 +144,12 @@ def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
     size = np.zeros(len(s_i), dtype=int)
     if prob.noise_scale is not None:
         size = np.round(np.log(prob.noise_scale[s_i, c_i]) / step).astype(int)
-    models: dict[tuple[int, int], gtsam.noiseModel.Base] = {}
-    for key in set(zip(level[s_i, c_i, j_i].tolist(), size.tolist(), strict=True)):
-        lv, k = key
-        models[key] = _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
-            2, prob.sigma_px * np.exp(k * step) / np.sqrt(lv / 20.0)))
+    levels = list(zip(level[s_i, c_i, j_i].tolist(), size.tolist(), strict=True))
+    models = {(lv, k): _robust(cfg.robust, cfg.robust_k, gtsam.noiseModel.Isotropic.Sigma(
+        2, prob.sigma_px * np.exp(k * step) / np.sqrt(lv / 20.0))) for lv, k in set(levels)}
     # everything per factor precomputed as Python objects: the loop only builds factors
     uv = list(prob.obs[s_i, c_i, j_i, :2])
-    noise = [models[key] for key in zip(level[s_i, c_i, j_i].tolist(), size.tolist(),
-                                          strict=True)]
+    noise = [models[key] for key in levels]
     points = (keys[s_i, j_i].astype(np.uint64) + np.uint64(P(0))).tolist()  # P(k) = P(0) + k
     poses = [X(c) for c in range(len(prob.cameras))]
     cals = [K(c) for c in range(len(prob.cameras))]
