@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from scipy.optimize import nnls
 
 from cascalib.camera import Camera
+from cascalib.stages.triangulation import huber_weight
 
 __all__ = ["fit_size_noise", "person_pixel_height", "residual_gains", "size_noise_scale",
            "triangulation_weights"]
@@ -74,10 +75,8 @@ def triangulation_weights(errors: NDArray[np.float64], confidence: NDArray[np.fl
     """Weights of the squared pixel residuals in :func:`cascalib.stages.triangulation.triangulate`
     at its solution: squared confidence, times Huber's weight beyond ``huber_px``; 0 where the
     error is not finite (unobserved)."""
-    conf = np.nan_to_num(confidence)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        huber = np.where(errors > huber_px, huber_px / errors, 1.0)
-    return np.where(np.isfinite(errors), conf**2 * huber, 0.0)
+    w = np.nan_to_num(confidence) ** 2 * huber_weight(errors, huber_px)
+    return np.where(np.isfinite(errors), w, 0.0)
 
 
 def residual_gains(points: NDArray[np.float64], cameras: list[Camera],

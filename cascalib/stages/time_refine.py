@@ -29,7 +29,7 @@ from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
 from cascalib.nanstats import nanmedian_last
 from cascalib.stages.association import Association, interpolate_views
-from cascalib.stages.triangulation import triangulate
+from cascalib.stages.triangulation import huber_weight, triangulate
 
 __all__ = ["previous_slots", "refine_offsets", "track_velocity"]
 
@@ -238,7 +238,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
             return 0.0, 0.0, 0
         # the fastest 1 % are swapped or outlying joints: their velocity would dominate the sums
         use &= vn <= np.percentile(vn[use], 99)
-        w = np.where(use, huber_px / np.maximum(rn, huber_px), 0.0)[..., None]
+        w = np.where(use, huber_weight(rn, huber_px), 0.0)[..., None]
         r, jac = np.where(use[..., None], r, 0.0), np.where(use[..., None], jac, 0.0)
         return float((w * jac * r).sum()), float((w * jac * jac).sum()), int(use.sum())
 

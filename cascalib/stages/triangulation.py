@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from cascalib.camera import Camera, distort_normalized
 from cascalib.geometry import norm_xy
 
-__all__ = ["reprojection_errors", "triangulate"]
+__all__ = ["huber_weight", "reprojection_errors", "triangulate"]
 
 
 def _normal_coefficients(P: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -79,6 +79,12 @@ def _weighted_dlt(P: NDArray[np.float64], xy: NDArray[np.float64], w: NDArray[np
     return np.stack([(c00 * b0 + c01 * b1 + c02 * b2) * inv,
                      (c01 * b0 + c11 * b1 + c12 * b2) * inv,
                      (c02 * b0 + c12 * b1 + c22 * b2) * inv], axis=-1)
+
+
+def huber_weight(errors: NDArray[np.float64], k: float) -> NDArray[np.float64]:
+    """Huber's weight of a squared residual of norm ``errors``: 1 up to ``k``, ``k / errors``
+    beyond (``k > 0``; NaN stays NaN)."""
+    return k / np.maximum(errors, k)
 
 
 def reprojection_errors(cameras: list[Camera], X: NDArray[np.float64], uv: NDArray[np.float64]
@@ -165,7 +171,7 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
         depth = np.einsum("cj,jn->cn", P[:, 2, :3], np.nan_to_num(X).T.copy()) + P[:, 2, 3][:, None]
         err = reprojection_errors(cameras, X, uv)
         err = np.where(seen, np.nan_to_num(err, nan=1e6), 0.0)
-        huber = np.where(err <= huber_px, 1.0, huber_px / np.maximum(err, 1e-12))
+        huber = huber_weight(err, huber_px)
         # weights on squared residuals: sqrt for the linear rows
         w = c0 * focal * np.sqrt(huber) / np.maximum(np.abs(depth), 1e-3)
         w = np.where(seen & (depth > 0), w, 0.0)
