@@ -74,6 +74,7 @@ class Association:
     tracks: NDArray[np.int64]
     ground: NDArray[np.float64]
     residual: NDArray[np.float64] | None = None
+    velocity: NDArray[np.float64] | None = None
 
     @property
     def n_groups(self) -> int:
@@ -83,10 +84,38 @@ class Association:
         """The groups ``index`` only."""
         return Association(self.times[index], self.obs[index], self.tracks[index],
                            self.ground[index],
-                           None if self.residual is None else self.residual[index])
+                           None if self.residual is None else self.residual[index],
+                           None if self.velocity is None else self.velocity[index])
 
 
 # -- 1. temporal alignment -----------------------------------------------------------------------
+def ground_velocity(assoc: Association, *, steps: int = 4, max_gap: float = 30.0
+                    ) -> NDArray[np.float64]:
+    """Ground velocity (metres per reference frame) of every group along its track, (G, 2).
+
+    Central difference of the ground positions up to ``steps`` groups before and after in the
+    same track and within ``max_gap / 2`` frames (one-sided at a track's ends and gaps); NaN for
+    untracked groups and groups with no such neighbour.
+    """
+    n = assoc.n_groups
+    out = np.full((n, 2), np.nan)
+    order = np.lexsort((assoc.times, assoc.tracks))
+    tr, t, g = assoc.tracks[order], assoc.times[order], assoc.ground[order]
+    pos = np.arange(n)
+    lo = np.maximum(pos - steps, 0)
+    hi = np.minimum(pos + steps, n - 1)
+    # stay within the track and the time window: move the ends inwards until they are
+    for _ in range(steps):
+        lo = np.where((tr[lo] != tr) | (t - t[lo] > max_gap / 2), lo + 1, lo)
+        hi = np.where((tr[hi] != tr) | (t[hi] - t > max_gap / 2), hi - 1, hi)
+    dt = t[hi] - t[lo]
+    ok = (tr >= 0) & (dt > 0)
+    vel = np.full((n, 2), np.nan)
+    vel[ok] = (g[hi[ok]] - g[lo[ok]]) / dt[ok, None]
+    out[order] = vel
+    return out
+
+
 def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None,
                 *, gate: float = 0.5) -> NDArray[np.int64]:
     """Which person slot of frame ``k + 1`` continues each slot of frame ``k``.

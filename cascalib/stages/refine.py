@@ -31,7 +31,7 @@ from cascalib.camera import Camera
 from cascalib.errors import InputError, RefinementFailed
 from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import Association, associate
+from cascalib.stages.association import Association, associate, ground_velocity
 from cascalib.stages.frame_selection import select_groups, usable_groups
 from cascalib.stages.keypoint_noise import size_noise_scale, triangulation_weights
 from cascalib.stages.person_size import bone_pairs, split_by_size
@@ -56,6 +56,7 @@ from cascalib.stages.refine_graph import (
     unpack,
 )
 from cascalib.stages.time_refine import refine_offsets
+from cascalib.stages.torso_lean import expected_torso_offsets, torso_offsets
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
@@ -224,7 +225,8 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
     obs = assoc.obs.copy()
     # a joint is a variable only with two usable observations: drop weak ones before triangulating
     obs[np.nan_to_num(obs[..., 2]) < cfg.min_confidence] = np.nan
-    assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground, assoc.residual)
+    assoc = Association(assoc.times, obs, assoc.tracks, assoc.ground, assoc.residual,
+                        assoc.velocity)
     huber_px = 4.0
     points, err = triangulate_groups(assoc, cameras, joints, huber_px=huber_px)
     scale = None
@@ -246,9 +248,15 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
     graph_cams = list(cameras)
     for c in fixed:
         graph_cams[c], obs[:, c, :, :2] = ideal_pinhole(cameras[c], obs[:, c, :, :2])
+    torso = None
+    if model != "f" and cfg.upright_sigma_m > 0:
+        upright = head.any(1)
+        lean = expected_torso_offsets(torso_offsets(points, names), assoc.velocity, upright)
+        torso = np.where(upright[:, None], lean, np.nan)
     return GraphProblem(graph_cams, obs, names, points, stance, head, bones, lengths, reference,
                         model, height, n_persons, sigma,  # type: ignore[arg-type]
-                        {c: cameras[c] for c in fixed}, scale)
+                        {c: cameras[c] for c in fixed}, scale, torso)
+
 
 
 def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray[np.float64]]:
@@ -576,6 +584,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
               ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups)]
     pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
+    assoc = replace(assoc, velocity=ground_velocity(assoc))  # the passes' walking lean
     pass_kw = kw | {"targets": targets}  # the last round's bone targets
     for model, mode, gain, budget in passes:
         res = None

@@ -128,6 +128,13 @@ class RefineConfig(BaseModel):
         "(paper: L_left,right); tracks are cut where the person's size jumps (a swap of two "
         "people) and pieces of one size rejoined (person_size.split_by_size).")
     bone_sigma_m: float = Field(0.015, gt=0, description="Bone-length noise (m).")
+    upright_sigma_m: float = Field(
+        0.02, ge=0, description="Upright torsos in the intrinsics passes: the neck of a standing "
+        "or walking person is above the mid-hip, ahead of it by the walking lean (fitted to "
+        "each graph's persons, torso_lean), with this horizontal sd (m) in a Huber kernel; 0: "
+        "off. It settles part of the principal point's trade-off with the rotation (terrace "
+        "seed 0 from the true rig: 0.94 -> 0.35 deg). Not in the rounds: their principal points "
+        "sit at the image centre, and their rotations must absorb that.")
 
     # -- gauge -------------------------------------------------------------------------------------
     gauge_yaw_sigma_deg: float = Field(

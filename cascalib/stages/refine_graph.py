@@ -25,6 +25,9 @@ call inside gtsam's optimisers, which grows with the square of the problem):
   -- fixes the metric scale (the average over persons, sd ``height_sd / sqrt(n_persons)``);
 * ``RangeFactor3`` on bones: constant bone length over a track and left/right symmetry, both to the
   per-track median triangulated with the previous round's cameras;
+* ``BetweenFactorPoint3`` from the mid-hip to the neck of upright persons, precision on x, y only:
+  upright torsos, the neck ahead by the walking lean (:mod:`cascalib.stages.torso_lean`), in the
+  intrinsics passes;
 * ``PriorFactorPose3`` on the reference camera with a full covariance that is tight on its yaw and
   x, y in the *world* frame and loose on tilt and height: fixes the world's yaw and origin.
 """
@@ -44,6 +47,7 @@ from numpy.typing import NDArray
 from cascalib.camera import Camera
 from cascalib.errors import RefinementFailed
 from cascalib.stages.refine_config import RefineConfig
+from cascalib.stages.torso_lean import TORSO
 
 __all__ = ["GraphProblem", "build_graph", "initial_values", "optimize", "unpack"]
 
@@ -89,6 +93,9 @@ class GraphProblem:
     noise_scale : ndarray, shape (S, C), optional
         Relative keypoint noise of each view (the person's size in the image,
         :mod:`cascalib.stages.keypoint_noise`); None: 1 for every view.
+    torso : ndarray, shape (S, 2), optional
+        Expected horizontal offset (m) of the neck from the mid-hip of each group that carries
+        the upright-torso term, NaN for the others; None: no such term.
     fixed : dict of int to Camera
         Cameras whose intrinsics are known, as given (only their K and distortion are used).
         Their ``obs`` are already undistorted to the ideal square-pixel pinhole that ``cameras``
@@ -111,6 +118,7 @@ class GraphProblem:
     sigma_px: float
     fixed: dict[int, Camera] = field(default_factory=dict)
     noise_scale: NDArray[np.float64] | None = None
+    torso: NDArray[np.float64] | None = None
 
     @property
     def n_joints(self) -> int:
@@ -182,6 +190,7 @@ def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         for s, j in zip(*heads, strict=True):
             target = np.array([0.0, 0.0, cfg.head_height(prob.joint_names[j], prob.height)])
             graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])), target, head))
+    _add_torso_priors(graph, prob, cfg)
     bone = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(
         1, cfg.bone_sigma_m))
     n_bone = 0
@@ -192,6 +201,26 @@ def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
                                          float(prob.bone_lengths[s, b]), bone))
             n_bone += 1
     return n_ground, n_head, n_bone
+
+
+def _add_torso_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
+                      cfg: RefineConfig) -> int:
+    """Upright torsos: the neck at ``prob.torso`` (horizontally) from the mid-hip, sd
+    ``cfg.upright_sigma_m`` in a Huber kernel, the height difference free."""
+    if prob.torso is None or not all(n in prob.joint_names for n in TORSO):
+        return 0
+    keys = prob.point_keys()
+    lo, hi = (prob.joint_names.index(n) for n in TORSO)
+    noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(cfg.robust_k),
+        gtsam.noiseModel.Diagonal.Sigmas(np.array([cfg.upright_sigma_m, cfg.upright_sigma_m,
+                                                   _LOOSE])))
+    rows = np.nonzero(np.isfinite(prob.torso).all(1) & (keys[:, lo] >= 0) & (keys[:, hi] >= 0))[0]
+    for s in rows:
+        offset = np.array([prob.torso[s, 0], prob.torso[s, 1], 0.0])
+        graph.add(gtsam.BetweenFactorPoint3(P(int(keys[s, lo])), P(int(keys[s, hi])), offset,
+                                            noise))
+    return int(rows.size)
 
 
 def _gauge_noise(cam: Camera, cfg: RefineConfig) -> gtsam.noiseModel.Base:

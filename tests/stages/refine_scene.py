@@ -87,11 +87,15 @@ def _walk(n_frames: int, n_persons: int, rng: np.random.Generator, fps: float, a
 def make_scene(*, n_cams: int = 4, n_frames: int = 60, n_persons: int = 3, noise_px: float = 0.0,
                outlier_rate: float = 0.0, offsets: tuple[float, ...] | None = None,
                radius: float = 8.0, focal: float = 1200.0, seed: int = 0,
-               distortion: tuple[float, ...] | None = None, area: float = 3.0) -> RefineScene:
+               distortion: tuple[float, ...] | None = None, area: float = 3.0,
+               principal_offset: float = 0.0) -> RefineScene:
     """Cameras on a ring at 2.5-3.5 m height looking at the centre; people walk inside.
 
     ``offsets[c]`` is the (possibly fractional) time offset of camera c in reference frames; the
     person motion is sampled at 1/10 frame and interpolated so fractional offsets are exact.
+    ``principal_offset``: each camera's principal point is off the image centre by up to this
+    fraction of the image size in x and y (uniform, from a stream of its own, so that the
+    scene is otherwise the same).
     """
     rng = np.random.default_rng(seed)
     fps = 25.0
@@ -109,6 +113,12 @@ def make_scene(*, n_cams: int = 4, n_frames: int = 60, n_persons: int = 3, noise
         dist = None if distortion is None else np.asarray(distortion)
         cams.append(Camera.from_params(f"cam{c}", size, f, R, t, dist=dist, fps=fps,
                                        time_offset=offsets[c]))
+    if principal_offset > 0:
+        shift = np.random.default_rng([seed, 7]).uniform(-1, 1, (n_cams, 2)) * principal_offset
+        for c, cam in enumerate(cams):
+            K = cam.K.copy()
+            K[:2, 2] += shift[c] * np.array(size)
+            cams[c] = cam.with_(K=K)
     truth = Calibration(cams)
     skel = get_skeleton("halpe26")
     tracks = []
