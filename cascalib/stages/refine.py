@@ -386,6 +386,30 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     return res + (prob,) if gain >= min_gain else None
 
 
+def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tuple,
+                             cfg: RefineConfig, kw: dict, joints: NDArray[np.int64],
+                             height: float) -> tuple[Association, dict, tuple]:
+    """The principal-point pass solved again ``cfg.principal_point_updates`` times, each with
+    the bone targets (and the track cuts) triangulated anew with the previous solve's cameras.
+
+    The targets come from the rounds' cameras, whose principal points sit at the image centre,
+    and they hold the pass near that start; re-triangulated, they follow the pass. Returns the
+    association, the passes' keywords (targets) and the solve's outcome (``res`` unchanged if
+    an update fails).
+    """
+    for _ in range(cfg.principal_point_updates if cfg.use_bones else 0):
+        cut, targets = _track_targets(assoc, res[0], cfg, joints, height)
+        cut = replace(cut, velocity=ground_velocity(cut))
+        prob = _refined_problem(cut, sel, res[0], cfg, kw | {"targets": targets}, "s2")
+        try:
+            res = solve(prob, _pass_config(cfg, "s2")) + (prob,)
+        except RefinementFailed as exc:
+            log.warning("principal-point update failed, keeping the previous solve: %s", exc)
+            break
+        assoc, kw = cut, kw | {"targets": targets}
+    return assoc, kw, res
+
+
 def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                            cfg: RefineConfig, kw: dict, *, max_groups: int | None = None
                            ) -> NDArray[np.float64] | None:
@@ -597,6 +621,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             if model == "s2":  # from the same start as the pass
                 pp_se = principal_point_spread(assoc, chosen, cameras, cfg, pass_kw,
                                                max_groups=cfg.spread_groups)
+                assoc, pass_kw, res = _settle_principal_points(assoc, chosen, res, cfg, pass_kw,
+                                                               joints, height)
             cameras, _, info, graph, values, prob = res
             solves.append(info)
             distortion = distortion or model == "ds2"

@@ -268,3 +268,31 @@ def test_upright_torsos_settle_part_of_the_principal_point():
             prob.sigma_px = 1.0
             total[sigma] += _rig_errors(solve(prob, cfg)[0], list(scene.truth))[0]
     assert total[0.02] < 0.95 * total[0.0]
+
+
+def test_principal_point_update_takes_targets_from_the_pass(scene):
+    """An update re-solves the pass with bone targets triangulated with the pass's cameras, not
+    the ones it was given."""
+    from cascalib.stages.refine import _settle_principal_points, _track_targets
+
+    cfg = RefineConfig(principal_point_updates=1)
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    h = float(scene.heights.mean())
+    assoc = _truth_association(scene, list(scene.truth), 20, stride=3)
+    assoc, fresh = _track_targets(assoc, list(scene.truth), cfg, joints, h)
+    stale = {tr: 1.1 * v for tr, v in fresh.items()}  # 10 % too long: from another rig
+    kw = dict(height=h, n_persons=3, reference=0, targets=stale)
+    prob = _make_problem(assoc, list(scene.truth), cfg, model="s2", **kw)
+    res = solve(prob, cfg) + (prob,)
+    _, kw_new, res_new = _settle_principal_points(assoc, np.arange(assoc.n_groups), res, cfg, kw,
+                                                  joints, h)
+    for tr, v in kw_new["targets"].items():  # exact data: the pass's cameras are the truth's
+        np.testing.assert_allclose(v, fresh[tr], rtol=0.02)
+    b = res_new[-1].bones
+    lengths = np.linalg.norm(res_new[1][:, b[:, 0]] - res_new[1][:, b[:, 1]], axis=-1)
+    target = res_new[-1].bone_lengths
+    ok = np.isfinite(lengths) & np.isfinite(target)
+    assert np.median(np.abs(lengths[ok] / target[ok] - 1)) < 0.02  # solved with the new ones
+    off = cfg.model_copy(update={"principal_point_updates": 0})
+    assert _settle_principal_points(assoc, np.arange(assoc.n_groups), res, off, kw, joints,
+                                    h)[2] is res
