@@ -12,7 +12,8 @@ Cascade of one call to :func:`refine`::
     views --associate (ground position, Hungarian, triangulation check)--> groups
     groups --select (coverage of time, floor, image)--> graph --LM--> cameras
     cameras --refine time offsets, re-associate--> (repeat n_rounds)
-    [final pass with principal point and distortion, kept if it helps on held-out frames]
+    [principal-point pass (upright torsos added), kept if it helps on held-out frames, then
+     solved again with bone targets from its own cameras; lens-distortion pass, likewise kept]
     cameras --triangulate every frame--> poses3d, quality report
 """
 
