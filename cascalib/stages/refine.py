@@ -402,8 +402,9 @@ def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tu
         cut, targets = _track_targets(assoc, res[0], cfg, joints, height)
         cut = replace(cut, velocity=ground_velocity(cut))
         prob = _refined_problem(cut, sel, res[0], cfg, kw | {"targets": targets}, "s2")
+        iterations = min(cfg.max_iterations, cfg.principal_point_update_iterations)
         try:
-            res = solve(prob, _pass_config(cfg, "s2")) + (prob,)
+            res = solve(prob, cfg.model_copy(update={"max_iterations": iterations})) + (prob,)
         except RefinementFailed as exc:
             log.warning("principal-point update failed, keeping the previous solve: %s", exc)
             break
