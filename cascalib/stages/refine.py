@@ -259,7 +259,6 @@ def _make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, 
                         {c: cameras[c] for c in fixed}, scale, torso)
 
 
-
 def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray[np.float64]]:
     """A camera of known intrinsics as the distortion-free, square-pixel pinhole that the graph's
     calibration models (``Cal3f`` has one focal) express exactly, with its keypoints ``uv``
