@@ -190,7 +190,6 @@ def _add_body_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         for s, j in zip(*heads, strict=True):
             target = np.array([0.0, 0.0, cfg.head_height(prob.joint_names[j], prob.height)])
             graph.add(gtsam.PriorFactorPoint3(P(int(keys[s, j])), target, head))
-    _add_torso_priors(graph, prob, cfg)
     bone = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Isotropic.Sigma(
         1, cfg.bone_sigma_m))
     n_bone = 0
@@ -309,11 +308,12 @@ def build_graph(prob: GraphProblem, cfg: RefineConfig) -> gtsam.NonlinearFactorG
     graph = gtsam.NonlinearFactorGraph()
     n_rep = _add_reprojection(graph, prob, cfg)
     n_ground, n_head, n_bone = _add_body_priors(graph, prob, cfg)
+    n_torso = _add_torso_priors(graph, prob, cfg)
     ref = prob.cameras[prob.reference]
     graph.add(gtsam.PriorFactorPose3(X(prob.reference), _pose(ref), _gauge_noise(ref, cfg)))
     _add_intrinsic_priors(graph, prob, cfg)
-    log.debug("graph: %d reprojection, %d ground, %d height, %d bone factors",
-              n_rep, n_ground, n_head, n_bone)
+    log.debug("graph: %d reprojection, %d ground, %d height, %d bone, %d torso factors",
+              n_rep, n_ground, n_head, n_bone, n_torso)
     if n_ground == 0 or n_head == 0:
         raise RefinementFailed("no stance feet or no upright person among the selected frames: "
                                "the ground plane and the scale are not observable")
