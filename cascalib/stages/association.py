@@ -98,7 +98,6 @@ def ground_velocity(assoc: Association, *, steps: int = 4, max_gap: float = 30.0
     untracked groups and groups with no such neighbour.
     """
     n = assoc.n_groups
-    out = np.full((n, 2), np.nan)
     order = np.lexsort((assoc.times, assoc.tracks))
     tr, t, g = assoc.tracks[order], assoc.times[order], assoc.ground[order]
     pos = np.arange(n)
@@ -110,9 +109,8 @@ def ground_velocity(assoc: Association, *, steps: int = 4, max_gap: float = 30.0
         hi = np.where((tr[hi] != tr) | (t[hi] - t > max_gap / 2), hi - 1, hi)
     dt = t[hi] - t[lo]
     ok = (tr >= 0) & (dt > 0)
-    vel = np.full((n, 2), np.nan)
-    vel[ok] = (g[hi[ok]] - g[lo[ok]]) / dt[ok, None]
-    out[order] = vel
+    out = np.full((n, 2), np.nan)
+    out[order[ok]] = (g[hi[ok]] - g[lo[ok]]) / dt[ok, None]
     return out
 
 

@@ -397,13 +397,14 @@ def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tu
     association, the passes' keywords (targets) and the solve's outcome (``res`` unchanged if
     an update fails).
     """
+    iterations = min(cfg.max_iterations, cfg.principal_point_update_iterations)
+    solve_cfg = cfg.model_copy(update={"max_iterations": iterations})
     for _ in range(cfg.principal_point_updates if cfg.use_bones else 0):
         cut, targets = _track_targets(assoc, res[0], cfg, joints, height)
         cut = replace(cut, velocity=ground_velocity(cut))
         prob = _refined_problem(cut, sel, res[0], cfg, kw | {"targets": targets}, "s2")
-        iterations = min(cfg.max_iterations, cfg.principal_point_update_iterations)
         try:
-            res = solve(prob, cfg.model_copy(update={"max_iterations": iterations})) + (prob,)
+            res = solve(prob, solve_cfg) + (prob,)
         except RefinementFailed as exc:
             log.warning("principal-point update failed, keeping the previous solve: %s", exc)
             break

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["expected_torso_offsets", "torso_offsets"]
+__all__ = ["TORSO", "expected_torso_offsets", "torso_offsets"]
 
 #: The torso's ends: the graph holds the horizontal offset of ``TORSO[1]`` from ``TORSO[0]``.
 #: Both exist for every detector (skeletons derives neck and mid-hip from shoulders and hips).
