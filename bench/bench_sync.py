@@ -55,12 +55,15 @@ def run_scene(preset: str, seed: int, *, errors: bool, with_refine: bool = False
     bad = [r for r in rows if abs(r.time_offset_error_frames) >= 0.5]
     bad_flagged = sum(bool(serious & set(res.flags[r.camera])) for r in bad)
     off_v: list[float] = []
+    rate_v: list[float] = []
     if with_refine:  # Stage V from this result, default settings
         refined = refine(tracks, res.calibration, height=1.70, rng=seed).calibration
-        off_v = [abs(r.time_offset_error_frames)
-                 for r in compare_calibrations(refined, truth, ground=True).cameras
-                 if r.camera != truth.reference_camera]
+        rows_v = [r for r in compare_calibrations(refined, truth, ground=True).cameras
+                  if r.camera != truth.reference_camera]
+        off_v = [abs(r.time_offset_error_frames) for r in rows_v]
+        rate_v = [abs(r.time_rate_error_pct) for r in rows_v]
     return {"off": [abs(r.time_offset_error_frames) for r in rows], "off_v": off_v,
+            "rate_v": rate_v,
             "bad": len(bad), "bad_flagged": bad_flagged,
             "rate": [abs(r.time_rate_error_pct) for r in rows],
             "rot": [r.rotation_error_deg for r in rows],
@@ -75,11 +78,13 @@ def table_scenes(seeds: list[int], with_refine: bool = False) -> None:
     print(f"{'scene':10s} {'I-err':5s} {'cams':>4s} {'frames':>6s} {'max|off|/L':>10s} "
           f"{'int ok':>7s} {'off med':>7s} {'off max':>7s} {'rate max%':>9s} {'rot max':>7s} "
           f"{'pos max':>7s} {'flags':>5s} {'bad flagged':>11s} {'time s':>6s}"
-          + (f" | {'V int ok':>8s} {'V off med':>9s} {'V off max':>9s}" if with_refine else ""))
+          + (f" | {'V int ok':>8s} {'V off med':>9s} {'V off max':>9s} {'V rate max%':>11s}"
+             if with_refine else ""))
     total, exact, total_v, exact_v = 0, 0, 0, 0
     for preset in ("terrace", "lab_ring", "crowd", "periodic"):
         for errors in (False, True):
-            acc: dict[str, list[float]] = {k: [] for k in ("off", "off_v", "rate", "rot", "pos")}
+            acc: dict[str, list[float]] = {k: [] for k in ("off", "off_v", "rate", "rate_v",
+                                                           "rot", "pos")}
             span, tsum, frames, flags, bad, bad_flagged = 0.0, 0.0, 0, 0, 0, 0
             for seed in seeds:
                 r = run_scene(preset, seed, errors=errors, with_refine=with_refine)
@@ -102,8 +107,8 @@ def table_scenes(seeds: list[int], with_refine: bool = False) -> None:
                 off_v = np.array(acc["off_v"])
                 ok_v = int((off_v < 0.5).sum())
                 total_v, exact_v = total_v + off_v.size, exact_v + ok_v
-                print(f" | {ok_v:4d}/{off_v.size:<3d} {np.median(off_v):9.3f} {off_v.max():9.3f}",
-                      end="")
+                print(f" | {ok_v:4d}/{off_v.size:<3d} {np.median(off_v):9.3f} {off_v.max():9.3f}"
+                      f" {max(acc['rate_v']):11.4f}", end="")
             print()
     print(f"integer part exact (|error| < 0.5 frame): {exact}/{total} = {100 * exact / total:.1f} %"
           " of non-reference cameras; flags = cameras flagged ambiguous/inconsistent/not aligned;"

@@ -497,8 +497,9 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                   joints: NDArray[np.int64], height: float,
                   rng: np.random.Generator) -> list[Camera]:
-    """Sub-frame time offsets of every non-reference camera, geometry fixed, re-associating
-    with the new clocks between updates (``cfg.time_iterations`` at most).
+    """Sub-frame time offsets (and rates, ``cfg.time_rates``) of every non-reference camera,
+    geometry fixed, re-associating with the new clocks between updates (``cfg.time_iterations``
+    at most).
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
@@ -508,7 +509,8 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     for _ in range(cfg.time_iterations):
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
-                             max_groups=cfg.time_groups, rng=rng)
+                             max_groups=cfg.time_groups, rates=cfg.time_rates,
+                             rate_sd=cfg.time_rate_sd, rng=rng)
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
                  "kept" if new_cost < cost else "rejected")

@@ -5,8 +5,8 @@ offsets only hold for the session it was made from. With the geometry known, syn
 needs no single-view step: each calibrated camera already places the people on the common ground
 plane, so stages II-III (:func:`cascalib.stages.align.align_cameras`) find every camera's offset and
 frame-rate ratio from the ground trajectories, and Stage V's sub-frame search
-(:func:`cascalib.stages.refine.refine_clocks`) polishes the offsets. The cameras' intrinsics and
-poses are kept exactly.
+(:func:`cascalib.stages.refine.refine_clocks`) polishes the offsets and rates. The cameras'
+intrinsics and poses are kept exactly.
 """
 
 from __future__ import annotations

@@ -88,20 +88,24 @@ def make_scene(*, n_cams: int = 4, n_frames: int = 60, n_persons: int = 3, noise
                outlier_rate: float = 0.0, offsets: tuple[float, ...] | None = None,
                radius: float = 8.0, focal: float = 1200.0, seed: int = 0,
                distortion: tuple[float, ...] | None = None, area: float = 3.0,
-               principal_offset: float = 0.0) -> RefineScene:
+               principal_offset: float = 0.0, rates: tuple[float, ...] | None = None
+               ) -> RefineScene:
     """Cameras on a ring at 2.5-3.5 m height looking at the centre; people walk inside.
 
     ``offsets[c]`` is the (possibly fractional) time offset of camera c in reference frames; the
     person motion is sampled at 1/10 frame and interpolated so fractional offsets are exact.
     ``principal_offset``: each camera's principal point is off the image centre by up to this
     fraction of the image size in x and y (uniform, from a stream of its own, so that the
-    scene is otherwise the same).
+    scene is otherwise the same). ``rates[c]``: camera c's frame k shows reference frame
+    ``rates[c] * k + offsets[c]`` (default 1).
     """
     rng = np.random.default_rng(seed)
     fps = 25.0
     offsets = offsets or (0.0,) * n_cams
+    rates = rates or (1.0,) * n_cams
     sub = 10
-    margin = int(np.ceil(max(abs(o) for o in offsets))) + 2
+    margin = int(np.ceil(max(abs(o) for o in offsets)
+                         + n_frames * max(max(rates) - 1.0, 0.0))) + 2
     fine, heights = _walk((n_frames + 2 * margin) * sub, n_persons, rng, fps * sub, area)
     size = (1920, 1080)
     cams = []
@@ -112,7 +116,7 @@ def make_scene(*, n_cams: int = 4, n_frames: int = 60, n_persons: int = 3, noise
         f = focal * rng.uniform(0.9, 1.1)
         dist = None if distortion is None else np.asarray(distortion)
         cams.append(Camera.from_params(f"cam{c}", size, f, R, t, dist=dist, fps=fps,
-                                       time_offset=offsets[c]))
+                                       time_offset=offsets[c], time_rate=rates[c]))
     if principal_offset > 0:
         shift = np.random.default_rng([seed, 7]).uniform(-1, 1, (n_cams, 2)) * principal_offset
         for c, cam in enumerate(cams):
@@ -123,8 +127,9 @@ def make_scene(*, n_cams: int = 4, n_frames: int = 60, n_persons: int = 3, noise
     skel = get_skeleton("halpe26")
     tracks = []
     for cam in cams:
-        # frame k shows reference time k + offset: fine index (k + offset + margin) * sub
-        idx = np.round((np.arange(n_frames) + cam.time_offset + margin) * sub).astype(int)
+        # frame k shows reference time rate k + offset: fine index (that + margin) * sub
+        idx = np.round((cam.time_rate * np.arange(n_frames) + cam.time_offset + margin)
+                       * sub).astype(int)
         X = fine[idx]
         uv = cam.project(X)
         uv = uv + rng.normal(0, noise_px, uv.shape)

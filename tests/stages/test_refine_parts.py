@@ -168,6 +168,33 @@ def test_time_offsets_recovered(scene):
     assert max(err) < 0.1
 
 
+def test_frame_rate_ratios_recovered_with_the_offsets():
+    """Clocks that run 0.1 % fast or slow: the rates and the offsets at frame 0 are recovered.
+
+    Held at the wrong rate, the offset settles where the middle of the recording agrees, so at
+    frame 0 it is off by about half the drift (0.15 frame here); with ``rates=False`` (the
+    earlier search) this test fails on the offsets.
+    """
+    rates = (1.0, 1.001, 0.999, 1.0006)
+    sc = make_scene(n_frames=300, n_persons=4, noise_px=1.0, offsets=(0, 0.3, -0.4, 0.2),
+                    rates=rates, seed=3)
+    cams = [c.with_(time_rate=1.0) for c in sc.truth]  # stage III's rates: all 1
+    data = _prepare(sc.tracks, sc.truth)
+    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
+    for _ in range(6):
+        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
+                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
+        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+    off = [abs(c.time_offset - t.time_offset) for c, t in zip(cams, sc.truth, strict=True)]
+    rate = [abs(c.time_rate / t.time_rate - 1) for c, t in zip(cams, sc.truth, strict=True)]
+    # at frame 0 and at the last frame: the whole mapping, not its middle
+    end = [abs(c.reference_frame(299) - t.reference_frame(299))
+           for c, t in zip(cams, sc.truth, strict=True)]
+    assert max(off) < 0.05, off
+    assert max(end) < 0.05, end
+    assert max(rate) < 1.5e-4, rate  # of 1e-3 to 6e-4 errors at the start
+
+
 def test_clock_search_uses_every_moving_joint():
     """From the true clocks and geometry, one offset update stays within 0.03 frame.
 
