@@ -105,14 +105,6 @@ class RefineResult:
     residuals: NDArray[np.float64] | None = None
 
 
-
-
-
-
-
-
-
-
 def bone_targets(points: NDArray[np.float64], tracks: NDArray[np.int64], bones: NDArray[np.int64],
                  classes: NDArray[np.int64], *, min_samples: int = 3) -> dict[int, NDArray]:
     """Per-track median length of each bone class (left and right pooled).
@@ -297,8 +289,6 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
         e = err[np.isfinite(err)]
         prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
     return cameras, points, info, graph, values
-
-
 
 
 def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Camera],

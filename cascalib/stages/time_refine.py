@@ -113,7 +113,7 @@ def track_velocity(keypoints: NDArray[np.float64], links: NDArray[np.int64],
 def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64]],
                    cameras: list[Camera], assoc: Association, reference: int, joints:
                    NDArray[np.int64], *, search: float = 1.0, max_groups: int = 6000,
-                   cap_px: float = 30.0, huber_px: float = 3.0, rates: bool = True,
+                   cap_px: float = 30.0, huber_px: float = 3.0, rates: bool = False,
                    rate_sd: float = 2e-4,
                    rng: np.random.Generator | None = None) -> list[Camera]:
     """Refine the time offset (and frame-rate ratio) of every non-reference camera.
@@ -142,7 +142,8 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     huber_px : float
         Scale of the Huber weights of the joint residuals (px).
     rates : bool
-        Refine the frame-rate ratios too (else stage III's are kept).
+        Refine the frame-rate ratios too (else stage III's are kept; see
+        ``RefineConfig.time_rates`` for why this is off by default).
     rate_sd : float
         Prior sd of one update's relative rate change (stage III's rates are good to about
         1e-4). Over a long recording the people's motion outweighs it; over a short one, whose

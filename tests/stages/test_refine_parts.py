@@ -184,7 +184,8 @@ def test_frame_rate_ratios_recovered_with_the_offsets():
     for _ in range(6):
         assoc = associate(_views(data, cams), cams, data.times, height=1.72,
                           ankle_height=0.085, gate_m=0.6, consistency=0.3)
-        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints,
+                              rates=True, rng=0)
     off = [abs(c.time_offset - t.time_offset) for c, t in zip(cams, sc.truth, strict=True)]
     rate = [abs(c.time_rate / t.time_rate - 1) for c, t in zip(cams, sc.truth, strict=True)]
     # at frame 0 and at the last frame: the whole mapping, not its middle
@@ -193,6 +194,25 @@ def test_frame_rate_ratios_recovered_with_the_offsets():
     assert max(off) < 0.05, off
     assert max(end) < 0.05, end
     assert max(rate) < 1.5e-4, rate  # of 1e-3 to 6e-4 errors at the start
+
+
+def test_decoupling_undoes_leaks_between_offsets_and_rates():
+    """Measurements made of the model ``change = -err + C err`` give back ``err`` (damped by
+    0.7), the leak of one camera's offset error into another's rate included."""
+    from cascalib.stages.time_refine import _decouple
+    err = np.array([[0.0, 0.0], [0.3, -0.1], [-0.2, 0.05]])  # camera 0: the reference
+    C = np.zeros((3, 3, 2, 2))
+    C[1, 2] = [[0.4, 0.0], [0.25, 0.4]]  # camera 2's offset error leaks into camera 1's rate
+    C[2, 1] = [[0.45, 0.05], [0.0, 0.45]]
+    C[1, 0] = C[2, 0] = 0.5 * np.eye(2)  # the reference's share: no error to inherit
+    change = -err + np.einsum("cikl,il->ck", C, err)
+    ok = np.array([False, True, True])
+    step = _decouple(change, C, ok)
+    assert np.allclose(step, -0.7 * err)
+    # without the off-diagonal terms the rate of camera 1 would be wrong
+    plain = C.copy()
+    plain[1, 2, 1, 0] = 0.0
+    assert abs(_decouple(change, plain, ok)[1, 1] + 0.7 * err[1, 1]) > 0.02
 
 
 def test_clock_search_uses_every_moving_joint():
