@@ -485,14 +485,15 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
 
 def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
-                  joints: NDArray[np.int64], height: float,
-                  rng: np.random.Generator) -> list[Camera]:
+                  joints: NDArray[np.int64], height: float, rng: np.random.Generator,
+                  anchor_rates: Collection[float] | None = None) -> list[Camera]:
     """Sub-frame time offsets (and rates, ``cfg.time_rates``) of every non-reference camera,
     geometry fixed, re-associating with the new clocks between updates (``cfg.time_iterations``
     at most).
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
+    ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
     """
     data = _check_times(data, cfg)  # the same times for every cost compared
     cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
@@ -500,7 +501,8 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
-                             rate_sd=cfg.time_rate_sd, rng=rng)
+                             rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,
+                             rng=rng)
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
                  "kept" if new_cost < cost else "rejected")
@@ -596,7 +598,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         if cfg.use_bones and r == n_rounds - 1:  # for the intrinsics passes (same association)
             assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
         if cfg.refine_time:  # after the last round too: the final association uses it
-            cameras = refine_clocks(data, cameras, cfg, joints, height, rng)
+            cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
+                                    anchor_rates=[c.time_rate for c in initial.cameras])
         step()
     distortion, n_selected = False, sel.size
     passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),

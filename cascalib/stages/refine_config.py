@@ -179,9 +179,9 @@ class RefineConfig(BaseModel):
         "away from stage III's (which were right to 1e-4), all cameras the same way, a bias "
         "not yet understood; so off by default.")
     time_rate_sd: float = Field(
-        2e-4, gt=0, description="Prior sd of one clock update's relative rate change (stage III's "
-        "rates are good to about 1e-4): over a long recording the people's motion outweighs it, "
-        "over a short one it holds the rate, which its ends hardly show.")
+        1e-4, gt=0, description="Prior sd of each camera's relative rate around stage III's (which "
+        "is good to about that): the clock search weighs its own rate against it by the scatter "
+        "of time blocks of the recording, so that a short recording keeps stage III's rate.")
     time_iterations: int = Field(
         2, ge=1, description="Offset updates (each after a re-association) after each round.")
     time_search_frames: float = Field(

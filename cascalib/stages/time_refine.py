@@ -27,6 +27,7 @@ frame, from any start within 0.4 frame of it (simulated crowd, true geometry).
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -114,7 +115,7 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
                    cameras: list[Camera], assoc: Association, reference: int, joints:
                    NDArray[np.int64], *, search: float = 1.0, max_groups: int = 6000,
                    cap_px: float = 30.0, huber_px: float = 3.0, rates: bool = False,
-                   rate_sd: float = 2e-4,
+                   rate_sd: float = 1e-4, anchor_rates: Sequence[float] | None = None,
                    rng: np.random.Generator | None = None) -> list[Camera]:
     """Refine the time offset (and frame-rate ratio) of every non-reference camera.
 
@@ -145,10 +146,13 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
         Refine the frame-rate ratios too (else stage III's are kept; see
         ``RefineConfig.time_rates`` for why this is off by default).
     rate_sd : float
-        Prior sd of one update's relative rate change (stage III's rates are good to about
-        1e-4). Over a long recording the people's motion outweighs it; over a short one, whose
-        ends a rate error hardly moves, it holds the rate where it is, so that the noise and
-        the other cameras' offset errors do not leak into it.
+        Prior sd of the relative rate around ``anchor_rates`` (stage III's rates are good to
+        about 1e-4). Where the people's motion determines the rate better (the scatter of time
+        blocks, see :func:`_block_rate_se`), the data outweigh it; over a short recording,
+        whose ends a rate error hardly moves, the rate stays at the anchor.
+    anchor_rates : sequence of float, optional
+        The rates the prior is centred on, one per camera: stage III's, so that repeated
+        updates cannot wander off them by noise; default the cameras' current rates.
 
     Returns
     -------
@@ -166,10 +170,14 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     ok = np.zeros(n_cams, dtype=bool)
     seeds = rng.integers(2**62, size=n_cams)  # one stream per camera: same result in any order
 
+    anchor = [c.time_rate for c in cameras] if anchor_rates is None else list(anchor_rates)
+
     def measure(c: int) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        # the rate term that brings the camera back to its anchor rate
+        back = half * (anchor[c] / cameras[c].time_rate - 1.0)
         return _measure(keypoints[c], links[c], cameras, c, assoc, joints, search=search,
                         max_groups=max_groups, cap_px=cap_px, huber_px=huber_px,
-                        centre=(t_mid, half), rate_sd=rate_sd * half if rates else 0.0,
+                        centre=(t_mid, half), rate_prior=(back, rate_sd * half if rates else 0.0),
                         rng=np.random.default_rng(seeds[c]))
 
     others = [c for c in range(n_cams) if c != reference]
@@ -229,12 +237,13 @@ def _decouple(change: NDArray[np.float64], coupling: NDArray[np.float64],
 def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: list[Camera],
              c: int, assoc: Association, joints: NDArray[np.int64], *, search: float,
              max_groups: int, cap_px: float, huber_px: float, centre: tuple[float, float],
-             rate_sd: float, rng: np.random.Generator
+             rate_prior: tuple[float, float], rng: np.random.Generator
              ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """Best clock change ``(delta, rho)`` of camera ``c`` against the others (see the module
-    docstring; ``rate_sd`` is the prior sd of ``rho`` in frames, and ``rho`` stays 0 when it is
-    0 or the motion does not span the recording), and the coupling blocks of
+    docstring; ``rate_prior`` is the prior mean and sd of ``rho`` in frames, and ``rho`` stays
+    0 when the sd is 0 or the motion does not span the recording), and the coupling blocks of
     :func:`_decouple`'s row of camera ``c``."""
+    rho_prior, rate_sd = rate_prior
     n_cams = len(cameras)
     others = [i for i in range(n_cams) if i != c]
     obs = assoc.obs[:, others][:, :, joints]
@@ -261,6 +270,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     # the rate prior in the normal equation's units (px^2): huber_px of residual per rate_sd
     prior = (huber_px / rate_sd) ** 2 if rate_sd > 0 else 0.0
     info = np.zeros(n_g)  # offset information of each group at the last evaluation
+    jr_t, jj_t = np.zeros(n_g), np.zeros(n_g)  # per group sum w J_d r and sum w J_d^2 there
 
     def normal_equation(theta: NDArray[np.float64]
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
@@ -282,9 +292,10 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         r, jac = np.where(use[..., None], r, 0.0), np.where(use[..., None], jac, 0.0)
         jr, jj = (w * jac * r).sum(-1), (w * jac * jac).sum(-1)  # (G, J)
         jju = jj * u[..., 0]
-        grad = np.array([jr.sum(), (jr * u[..., 0]).sum() + prior * theta[1]])
+        grad = np.array([jr.sum(), (jr * u[..., 0]).sum() + prior * (theta[1] - rho_prior)])
         hess = np.array([[jj.sum(), jju.sum()], [jju.sum(), (jju * u[..., 0]).sum() + prior]])
         info[:] = jj.sum(-1)
+        jr_t[:], jj_t[:] = jr.sum(-1), info
         return grad, hess, int(use.sum())
 
     s0, h0, n_used = normal_equation(np.zeros(2))
@@ -334,6 +345,15 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         t1 = np.clip(t1 + np.clip(step, -0.5, 0.5), -search, search)
         if np.abs(t1 - t0).max() < 1e-3:
             break
+    if free[1]:
+        # the rate's real uncertainty: the nominal one counts every joint as independent, while
+        # association slips and geometry errors that change as people move are correlated over
+        # seconds; the scatter of the offsets of time blocks about the fitted line shows them.
+        # The rate is weighed against the anchor's (prior sd rate_sd) by it
+        kappa = float(np.clip(slope[0, 0] / hess[0, 0], 0.05, 1.0)) if hess[0, 0] > 0 else 1.0
+        se = _block_rate_se(jr_t, jj_t, u[:, 0, 0], kappa)
+        shrink = rate_sd**2 / (rate_sd**2 + se**2)
+        t1[1] = rho_prior + shrink * (t1[1] - rho_prior)
     # how the others' clock errors reach this measurement (see _decouple): each group's
     # triangulation follows the others' clocks by their share of its observations, and the
     # measurement weighs the groups by their information
@@ -346,7 +366,38 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     blocks = np.zeros((n_cams, 2, 2))
     if free[1]:
         blocks[others] = np.linalg.solve(hess, moments)
+        blocks[others, 1] *= shrink  # the shrunk rate follows the others' errors less
     else:  # the offset alone
         blocks[others, 0, 0] = moments[:, 0, 0] / max(hess[0, 0], 1e-12)
         t1[1] = 0.0
     return t1, blocks
+
+
+def _block_rate_se(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.float64],
+                   kappa: float, n_blocks: int = 8) -> float:
+    """Standard error (frames over half the recording) of the rate term from the scatter of
+    time blocks.
+
+    Each of ``n_blocks`` blocks of the recording (by ``u``) gets the offset its own groups ask
+    for, ``-sum jr / (kappa sum jj)`` (``kappa``: the secant's share of the Gauss-Newton
+    curvature, which the Huber weights overstate); a weighted line through them has the rate as
+    its slope, and the blocks' scatter about it gives the slope's standard error. Infinite with
+    fewer than four blocks that carry information.
+    """
+    b = np.clip(((u + 1.0) * 0.5 * n_blocks).astype(int), 0, n_blocks - 1)
+    g = np.bincount(b, jr, n_blocks)
+    h = np.bincount(b, jj, n_blocks)
+    hu = np.bincount(b, jj * u, n_blocks)
+    keep = h > 0.02 * h.sum()
+    if keep.sum() < 4:
+        return float("inf")
+    d, ub, w = -g[keep] / (kappa * h[keep]), hu[keep] / h[keep], h[keep] / h[keep].mean()
+    A = np.stack([np.ones_like(ub), ub], axis=1) * np.sqrt(w)[:, None]
+    coef, *_ = np.linalg.lstsq(A, d * np.sqrt(w), rcond=None)
+    resid = d * np.sqrt(w) - A @ coef
+    sigma2 = float(resid @ resid) / (keep.sum() - 2)
+    try:
+        cov = sigma2 * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(max(cov[1, 1], 0.0)))
