@@ -143,8 +143,9 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     huber_px : float
         Scale of the Huber weights of the joint residuals (px).
     rates : bool
-        Refine the frame-rate ratios too (else stage III's are kept; see
-        ``RefineConfig.time_rates`` for why this is off by default).
+        Refine the frame-rate ratios too (else stage III's are kept). Off here so that a
+        caller gets the plain offset search; the pipeline turns it on
+        (``RefineConfig.time_rates``, with the measurements).
     rate_sd : float
         Prior sd of the relative rate around ``anchor_rates`` (stage III's rates are good to
         about 1e-4). Where the people's motion determines the rate better (the scatter of time
