@@ -601,7 +601,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
                                     anchor_rates=[c.time_rate for c in initial.cameras])
         step()
-    distortion, n_selected = False, sel.size
+    distortion, n_selected, n_passes = False, sel.size, 0
     passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
               ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups)]
     pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
@@ -622,6 +622,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
                                                                joints, height)
             cameras, _, info, graph, values, prob = res
             solves.append(info)
+            n_passes += 1
             distortion = distortion or model == "ds2"
             n_selected = chosen.size
         step()
@@ -630,6 +631,10 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     sigmas = marginal_sigmas(graph, values, prob)
     if pp_se is not None:
         sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
+    if cfg.refine_time and cfg.time_final_update and n_passes:
+        # the passes moved the geometry after the rounds' last clock update
+        cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
+                                anchor_rates=[c.time_rate for c in initial.cameras])
     final, points, err = reconstruct(data, cameras, cfg, height)
     step()
     quality = _report(final, err, cameras, sigmas, cfg)
