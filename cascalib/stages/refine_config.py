@@ -165,7 +165,7 @@ class RefineConfig(BaseModel):
     # -- time --------------------------------------------------------------------------------------
     refine_time: bool = Field(
         True, description="Refine each camera's time offset to sub-frame accuracy between "
-        "rounds by interpolating its 2D tracks (the rate from stage III is kept).")
+        "rounds by interpolating its 2D tracks (and its frame-rate ratio: time_rates).")
     time_rates: bool = Field(
         True, description="Refine each camera's frame-rate ratio with its offset (else stage "
         "III's is kept). Held at stage III's rate, the offset settles where the middle of the "
