@@ -184,8 +184,9 @@ class RefineConfig(BaseModel):
         "it lowers the joint error) after the intrinsics passes, which move the geometry after "
         "the rounds' last update. Measured on bench_sync.py's 24 scenes (84 cameras, Stage V "
         "offset |error| at frame 0): max 0.276 -> 0.182 frame, cameras > 0.1 frame 14 -> 10, "
-        "median 0.038 -> 0.037; rotations unchanged (no geometry solve follows); about 1 s of "
-        "CPU on 4 cameras x 3000 frames x 5 persons.")
+        "median 0.038 -> 0.037; rotations unchanged (no geometry solve follows). Cost: 1.1 s of "
+        "CPU on 4 cameras x 3000 frames x 5 persons (its update rejected there), 1.8 s of "
+        "Stage V's 20 s on the README example.")
     time_rate_sd: float = Field(
         1e-4, gt=0, description="Prior sd of each camera's relative rate around stage III's (which "
         "is good to about that): the clock search weighs its own rate against it by the scatter "
