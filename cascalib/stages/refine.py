@@ -567,6 +567,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         raise InputError(f"known intrinsics given for cameras {unknown} that the calibration "
                          f"lacks ({initial.names})", camera=unknown[0], field="known_intrinsics")
     fixed = frozenset(initial.names.index(n) for n in fixed_intrinsics)
+    stage3_rates = [c.time_rate for c in initial.cameras]  # the clock search's rate anchors
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     solves: list[SolveInfo] = []
     targets: dict[int, NDArray] | None = None
@@ -599,7 +600,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
         if cfg.refine_time:  # after the last round too: the final association uses it
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
-                                    anchor_rates=[c.time_rate for c in initial.cameras])
+                                    anchor_rates=stage3_rates)
         step()
     distortion, n_selected, n_passes = False, sel.size, 0
     passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
@@ -634,7 +635,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     if cfg.refine_time and cfg.time_final_update and n_passes:
         # the passes moved the geometry after the rounds' last clock update
         cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
-                                anchor_rates=[c.time_rate for c in initial.cameras])
+                                anchor_rates=stage3_rates)
     final, points, err = reconstruct(data, cameras, cfg, height)
     step()
     quality = _report(final, err, cameras, sigmas, cfg)

@@ -271,7 +271,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     # the rate prior in the normal equation's units (px^2): huber_px of residual per rate_sd
     prior = (huber_px / rate_sd) ** 2 if rate_sd > 0 else 0.0
     info = np.zeros(n_g)  # offset information of each group at the last evaluation
-    jr_t, jj_t = np.zeros(n_g), np.zeros(n_g)  # per group sum w J_d r and sum w J_d^2 there
+    grad_g = np.zeros(n_g)  # offset gradient (sum w J_d r) of each group there
 
     def normal_equation(theta: NDArray[np.float64]
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
@@ -296,7 +296,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         grad = np.array([jr.sum(), (jr * u[..., 0]).sum() + prior * (theta[1] - rho_prior)])
         hess = np.array([[jj.sum(), jju.sum()], [jju.sum(), (jju * u[..., 0]).sum() + prior]])
         info[:] = jj.sum(-1)
-        jr_t[:], jj_t[:] = jr.sum(-1), info
+        grad_g[:] = jr.sum(-1)
         return grad, hess, int(use.sum())
 
     s0, h0, n_used = normal_equation(np.zeros(2))
@@ -352,7 +352,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         # seconds; the scatter of the offsets of time blocks about the fitted line shows them.
         # The rate is weighed against the anchor's (prior sd rate_sd) by it
         kappa = float(np.clip(slope[0, 0] / hess[0, 0], 0.05, 1.0)) if hess[0, 0] > 0 else 1.0
-        se = _block_rate_se(jr_t, jj_t, u[:, 0, 0], kappa)
+        se = _block_rate_se(grad_g, info, u[:, 0, 0], kappa)
         shrink = rate_sd**2 / (rate_sd**2 + se**2)
         t1[1] = rho_prior + shrink * (t1[1] - rho_prior)
     # how the others' clock errors reach this measurement (see _decouple): each group's
