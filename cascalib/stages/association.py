@@ -140,9 +140,11 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     present = np.isfinite(keypoints[..., 0]).any(-1)  # (F, P)
     k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
     d = np.full((n_f - 1, n_p, n_p), np.nan)
+    xy = np.ascontiguousarray(keypoints[..., :2])  # gathers of whole rows: twice as fast
     with np.errstate(invalid="ignore"), _quiet():
-        d[k, p, q] = np.nanmean(norm_xy(keypoints[k, p, :, :2] - keypoints[k + 1, q, :, :2]),
-                                axis=-1)
+        step = norm_xy(xy[k, p] - xy[k + 1, q])  # (pairs, J)
+        seen = np.isfinite(step)
+        d[k, p, q] = np.where(seen, step, 0.0).sum(-1) / seen.sum(-1)  # nanmean, no copies
         ext = joint_extent(keypoints)
         size = norm_xy(ext)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
@@ -388,7 +390,8 @@ def _align_grounds(grounds: list[NDArray[np.float64]], t_all: NDArray[np.int64],
 
 def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: NDArray[np.float64],
               *, height: float, ankle_height: float, gate_m: float, consistency: float,
-              huber_px: float = 4.0, align_ground: int = 0, reference: int = 0) -> Association:
+              huber_px: float = 4.0, align_ground: int = 0, reference: int = 0,
+              link: bool = True) -> Association:
     """Associate persons across cameras at every reference time.
 
     Parameters
@@ -410,6 +413,10 @@ def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: ND
         Rounds of per-camera affine ground alignment before re-clustering (for poor cameras).
     reference : int
         Camera whose ground positions are not warped.
+    link : bool
+        Link the groups into person tracks (:func:`link_tracks`); else every track is -1
+        (for callers that only triangulate the groups: the linking is a Python loop over the
+        reference times).
 
     Returns
     -------
@@ -439,7 +446,7 @@ def associate(views: list[NDArray[np.float64]], cameras: list[Camera], times: ND
              keep.sum(), len(times), (~keep).sum())
     assoc = Association(times[t_all[keep]], obs[keep], np.full(keep.sum(), -1, dtype=np.int64),
                         ground[keep], residual[keep])
-    return link_tracks(assoc)
+    return link_tracks(assoc) if link else assoc
 
 
 def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance: float,

@@ -477,7 +477,7 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     the reference times of ``data`` (see :func:`_check_times`)."""
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
                       ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
-                      consistency=cfg.consistency)
+                      consistency=cfg.consistency, link=False)  # no tracks needed
     step = max(1, assoc.n_groups // 2000)
     _, err = triangulate_groups(assoc.subset(np.arange(0, assoc.n_groups, step)), cameras, joints)
     e = err[np.isfinite(err)]

@@ -90,6 +90,7 @@ def test_frame_links_equal_per_frame_hungarian():
         kp = np.cumsum(rng.normal(size=(n_f, n_p, 5, 3)), axis=0) + \
             rng.normal(size=(1, n_p, 5, 3)) * 30 + 100
         kp[rng.random((n_f, n_p)) < 0.3] = np.nan
+        kp[rng.random((n_f, n_p, 5)) < 0.2] = np.nan  # single joints missing too
         if trial % 3 == 0 and n_p > 1:
             kp[:, -1] = kp[:, 0]
         links = frame_links(kp, gate=0.5)
