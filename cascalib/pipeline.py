@@ -224,7 +224,7 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
     aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                            progress=lambda f: report("sync", f))
+                            progress=lambda f: report("sync", f), height=cfg.height)
     initial = aligned.calibration
     if cfg.synchronized:
         initial = _synchronized(initial, tracks)

@@ -103,6 +103,12 @@ def _stage_figures(result: CalibrationResult) -> list[tuple[str, str, Figure]]:
     if sync_plot is not None:
         figs.append(("Stages II-IV: synchronisation", "Sync cost per camera pair with the "
                      "chosen offset", sync_plot(result.alignment)))
+    epi_plot = _optional("cascalib.stages.align_plot", "plot_epipolar_curves")
+    epi_fig = epi_plot(result.alignment) if epi_plot is not None else None
+    if epi_fig is not None:
+        figs.append(("Stages II-IV: synchronisation", "Sub-frame clocks: the epipolar "
+                     "consistency of the people's joints per camera pair over the clock shift "
+                     "(lower is better), with the shift chosen in each iteration", epi_fig))
     figs.append(("Cameras and trajectories", "Bird's-eye view of the final cameras and the "
                  "triangulated feet", plot_birdseye(result.calibration, result.poses.joints)))
     figs.append(("Cameras and trajectories", "3D view of the cameras and a few poses",

@@ -35,6 +35,7 @@ from cascalib.errors import EstimationFailed, InputError
 from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
 from cascalib.stages.consensus import CandidateEdge, vote_cameras
+from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks
 from cascalib.stages.ground import GroundTracks, ground_trajectories
 from cascalib.stages.icp import (
     IcpResult,
@@ -101,6 +102,9 @@ class AlignmentResult:
         Ground trajectories per camera in its own plane frame.
     transforms : list of Similarity2D
         Per camera, own plane frame -> reference plane frame.
+    epipolar : EpipolarClocks, optional
+        The sub-frame clock correction of the last step (``AlignConfig.epipolar_sync``), its
+        pairwise cost curves included; ``calibration`` carries its clocks.
     """
 
     calibration: Calibration
@@ -110,6 +114,7 @@ class AlignmentResult:
     ground: list[GroundTracks]
     transforms: list[Similarity2D]
     diagnostics: dict[str, object] = field(default_factory=dict)
+    epipolar: EpipolarClocks | None = None
 
 
 def _fps(tracks: Tracks, camera: Camera) -> float | None:
@@ -476,7 +481,8 @@ def _place(cam: Camera, T: Similarity2D) -> Camera:
 def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                   config: AlignConfig | None = None, *, reference: str | int | None = None,
                   rng: np.random.Generator | int | None = None,
-                  progress: Callable[[float], None] | None = None) -> AlignmentResult:
+                  progress: Callable[[float], None] | None = None,
+                  height: float = 1.70) -> AlignmentResult:
     """Synchronise all cameras and place them on the reference camera's ground plane.
 
     Parameters
@@ -492,6 +498,9 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     progress : callable, optional
         ``progress(fraction)`` when the ground trajectories are made and as each camera pair is
         aligned (pairs take most of the time).
+    height : float
+        Mean person height (m): the epipolar clock step matches persons across cameras by
+        their ground positions, from the hips where the feet are not seen.
 
     Returns
     -------
@@ -544,7 +553,15 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
         raise EstimationFailed("no camera could be synchronised and aligned with the "
                                "reference: the cameras may not see the same people, or too "
                                "few walking people were detected", camera=tracks[ref].camera)
-    return _result(tracks, plane_cameras, ground, pairs, T, a, b, rho, fps, ref, cfg)
+    result = _result(tracks, plane_cameras, ground, pairs, T, a, b, rho, fps, ref, cfg)
+    if not cfg.epipolar_sync:
+        return result
+    report(0.95)
+    epi = epipolar_clocks(tracks, result.calibration, height=height,
+                          window=cfg.epipolar_window_frames, n_times=cfg.epipolar_times,
+                          max_points=cfg.epipolar_points, iterations=cfg.epipolar_iterations,
+                          n_workers=cfg.n_workers, rng=rng)
+    return replace(result, calibration=epi.calibration, epipolar=epi)
 
 
 def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks],

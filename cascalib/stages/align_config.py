@@ -124,3 +124,23 @@ class AlignConfig(BaseModel):
     pixel_noise: float = Field(
         2.0, gt=0, description="Foot detection noise (px) of the ground noise model "
         "d^2 / (f h) per pixel, which weights the sub-frame fit.")
+
+    # -- sub-frame clocks from the epipolar geometry (stages/epipolar_sync.py) ----------------
+    epipolar_sync: bool = Field(
+        True, description="After stage IV, correct every camera's time offset by the shift at "
+        "which a fundamental matrix, fitted afresh at each shift, best explains the joints that "
+        "two cameras see of the same persons (robust L1 over all pairs). The ground "
+        "trajectories leave offsets about half a frame off in a crowd; the epipolar geometry "
+        "does not depend on stage IV's rotations or stage I's focal lengths.")
+    epipolar_window_frames: float = Field(
+        1.5, gt=0, description="Largest offset correction searched (reference frames) in the "
+        "first iteration; each later iteration searches half as far.")
+    epipolar_iterations: int = Field(
+        2, ge=1, description="Search, correct and associate again: the association at the "
+        "current clocks holds each search a little towards them.")
+    epipolar_times: int = Field(
+        300, ge=20, description="Reference times (evenly spread) whose persons are matched "
+        "across cameras for the epipolar search.")
+    epipolar_points: int = Field(
+        8000, ge=100, description="Joint correspondences per camera pair (a random subset of "
+        "the matched persons beyond).")

@@ -1,4 +1,5 @@
-"""Plots of stages II-IV: sync cost curves per camera pair and the aligned bird's-eye view.
+"""Plots of stages II-IV: sync cost curves per camera pair (ground trajectories, then the
+epipolar sub-frame search) and the aligned bird's-eye view.
 
 matplotlib with the Agg backend (no display needed); each function writes one PNG and returns
 the figure so callers (CLI, notebooks) can also show or embed it.
@@ -17,7 +18,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from cascalib.stages.align import AlignmentResult  # noqa: E402
 
-__all__ = ["plot_sync_curves", "plot_ground_alignment"]
+__all__ = ["plot_epipolar_curves", "plot_sync_curves", "plot_ground_alignment"]
 
 
 def plot_sync_curves(result: AlignmentResult, path: str | Path | None = None) -> Figure:
@@ -55,6 +56,50 @@ def plot_sync_curves(result: AlignmentResult, path: str | Path | None = None) ->
         ax.set_ylabel("cost", fontsize=7)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def plot_epipolar_curves(result: AlignmentResult, path: str | Path | None = None
+                         ) -> Figure | None:
+    """The epipolar clock search per camera pair: the robust Sampson cost over the change of
+    the second camera's offset since stage III (each iteration's curve, relative to its
+    lowest sample), with the shift each iteration chose.
+
+    Parameters
+    ----------
+    result : AlignmentResult
+        With ``epipolar`` (None without it: nothing to plot).
+    path : str or Path, optional
+        PNG to write.
+    """
+    if result.epipolar is None or not result.epipolar.pairs:
+        return None
+    names = result.calibration.names
+    keys = sorted({(p.i, p.j) for p in result.epipolar.pairs})
+    cols = min(3, len(keys))
+    rows = int(np.ceil(len(keys) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.2 * rows), squeeze=False)
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:purple"]
+    for ax, (i, j) in zip(axes.ravel(), keys, strict=False):
+        done = 0.0
+        for p in (q for q in result.epipolar.pairs if (q.i, q.j) == (i, j)):
+            color = colors[p.iteration % len(colors)]
+            ax.plot(p.base + p.shifts, p.costs / p.costs.min(), ".-", lw=0.8, ms=3,
+                    color=color, label=f"iteration {p.iteration + 1}")
+            ax.axvline(p.base + p.shift, color=color, lw=1, ls="--")
+            done = p.base + p.shift
+        ax.set_title(f"{names[i]} - {names[j]}: {names[j]} {done:+.2f} frame against "
+                     f"{names[i]}", fontsize=8)
+        ax.set_xlabel(f"change of {names[j]}'s offset relative to {names[i]}'s "
+                      "(reference frames)", fontsize=7)
+        ax.set_ylabel("Sampson cost / lowest", fontsize=7)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6)
+    for ax in axes.ravel()[len(keys):]:
         ax.axis("off")
     fig.tight_layout()
     if path is not None:

@@ -11,6 +11,7 @@ Huber), link the persons over time (and across gaps), and scatter the result int
 from __future__ import annotations
 
 import logging
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -69,7 +70,7 @@ def prepare(tracks: list[Tracks], calibration: Calibration) -> SessionData:
         raise InputError("3D reconstruction needs at least two cameras", field="cameras")
     ordered = [by_name[n] for n in calibration.names]
     kps = [t.canonical() for t in ordered]
-    links = [frame_links(k, t.track_ids) for k, t in zip(kps, ordered, strict=True)]
+    links = [_frame_links(t) for t in ordered]
     sizes = [t.image_size or cam.image_size
              for t, cam in zip(ordered, calibration.cameras, strict=True)]
     ref = calibration.names.index(calibration.reference_camera)
@@ -79,6 +80,21 @@ def prepare(tracks: list[Tracks], calibration: Calibration) -> SessionData:
     if not fps and rt.timestamps is not None and len(rt.timestamps) > 1:
         fps = 1.0 / float(np.nanmedian(np.diff(rt.frame_times())))
     return SessionData(kps, links, sizes, times, ref, float(fps or 1.0))
+
+
+#: Frame links of each Tracks met (weakly held): stage IV's epipolar clock step and stage V
+#: prepare the same session (0.27 s for 4 cameras x 3000 frames of 5 persons).
+_LINKS: weakref.WeakKeyDictionary[Tracks, NDArray[np.int64]] = weakref.WeakKeyDictionary()
+
+
+def _frame_links(tracks: Tracks) -> NDArray[np.int64]:
+    """:func:`~cascalib.stages.association.frame_links` of ``tracks``, made once."""
+    links = _LINKS.get(tracks)
+    if links is None:
+        links = frame_links(tracks.canonical(), tracks.track_ids)
+        links.flags.writeable = False
+        _LINKS[tracks] = links
+    return links
 
 
 def views_at(data: SessionData, cameras: list[Camera]) -> list[NDArray[np.float64]]:

@@ -35,8 +35,8 @@ from scipy.ndimage import gaussian_filter1d
 
 from cascalib.stages.ground import GroundTracks
 
-__all__ = ["GridTrack", "SyncCandidate", "SyncCurve", "resample_tracks", "search_offsets",
-           "solve_time"]
+__all__ = ["GridTrack", "SyncCandidate", "SyncCurve", "irls_l1", "resample_tracks",
+           "search_offsets", "solve_time"]
 
 logger = logging.getLogger(__name__)
 
@@ -387,9 +387,9 @@ def solve_time(n_cams: int, edges: list[tuple[float, ...]], reference: int, *,
     A[np.arange(len(E)), i] -= 1.0
     free = np.arange(n_cams) != reference
     log_a = np.zeros(n_cams)
-    log_a[free] = _irls_l1(A[:, free], E[:, 3], w0, n_iter, 1e-6)
+    log_a[free] = irls_l1(A[:, free], E[:, 3], w0, n_iter, 1e-6)
     b = np.zeros(n_cams)
-    b[free] = _irls_l1(A[:, free], np.exp(log_a)[i] * E[:, 2], w0, n_iter, 1e-2)
+    b[free] = irls_l1(A[:, free], np.exp(log_a)[i] * E[:, 2], w0, n_iter, 1e-2)
     ok = np.abs(A @ b - np.exp(log_a)[i] * E[:, 2]) <= tolerance
     if ok.any():
         # a single pair that finds a drift the cycles through the other cameras do not show
@@ -417,7 +417,7 @@ def _wlstsq(A: NDArray[np.float64], y: NDArray[np.float64], w: NDArray[np.float6
     return np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)[0]
 
 
-def _irls_l1(A: NDArray[np.float64], y: NDArray[np.float64], w0: NDArray[np.float64],
+def irls_l1(A: NDArray[np.float64], y: NDArray[np.float64], w0: NDArray[np.float64],
              n_iter: int, eps: float) -> NDArray[np.float64]:
     """Weighted L1 regression ``min sum w0 |A x - y|`` by iteratively reweighted least squares.
     Unconnected unknowns stay 0 (minimum-norm solution)."""
