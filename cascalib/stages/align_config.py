@@ -129,15 +129,24 @@ class AlignConfig(BaseModel):
     epipolar_sync: bool = Field(
         True, description="After stage IV, correct every camera's time offset by the shift at "
         "which a fundamental matrix, fitted afresh at each shift, best explains the joints that "
-        "two cameras see of the same persons (robust L1 over all pairs). The ground "
-        "trajectories leave offsets about half a frame off in a crowd; the epipolar geometry "
-        "does not depend on stage IV's rotations or stage I's focal lengths.")
+        "two cameras see of the same persons (robust L1 over all pairs; "
+        "stages/epipolar_sync.py). The ground trajectories leave offsets about half a frame "
+        "off in a crowd; the epipolar geometry does not depend on stage IV's rotations or "
+        "stage I's focal lengths. Measured with bench_sync.py's 24 scenes (84 cameras): "
+        "integer part right 76 -> 84, median error 0.10-0.36 -> 0.03-0.08 frame per preset, "
+        "worst 1.02 -> 0.27; on 24 whole-cascade scenes (real stage I, quick-matrix presets, "
+        "seeds 0-5): 67 -> 84 of 84, median 0.24 -> 0.04 frame. About 0.5-1 s on 4 cameras x "
+        "3000 frames x 5 persons.")
     epipolar_window_frames: float = Field(
-        1.5, gt=0, description="Largest offset correction searched (reference frames) in the "
-        "first iteration; each later iteration searches half as far.")
+        1.5, gt=0, description="Offset correction searched (reference frames) in the first "
+        "iteration; a camera pair whose best shift lies on the window's edge is searched again "
+        "over twice the window (stage IV once left a periodic walk 2.5 frames off); each later "
+        "iteration searches half as far.")
     epipolar_iterations: int = Field(
-        2, ge=1, description="Search, correct and associate again: the association at the "
-        "current clocks holds each search a little towards them.")
+        2, ge=1, description="Most searches: search, correct and associate again (the "
+        "association at the current clocks holds each search a little towards them: a first "
+        "search left a third of a 0.5-0.7 frame error on simulated crowds), unless no camera "
+        "moved by 0.15 frame or more.")
     epipolar_times: int = Field(
         300, ge=20, description="Reference times (evenly spread) whose persons are matched "
         "across cameras for the epipolar search.")

@@ -18,6 +18,12 @@ persons across cameras by their ground positions, as stage V's first association
 The pairwise shifts become per-camera corrections by a robust L1 fit over all pairs, so that one
 bad pair is outvoted by the cycles through the other cameras. Rates stay at stage III's.
 
+Measured (``python bench/bench_sync.py --only scenes``, 84 cameras of 24 scenes with offsets up to
+half the recording, 25/30 fps, drift; with and without stage-I errors): integer part right
+76 -> 84 of 84, median error per preset 0.10-0.36 -> 0.03-0.08 frame, worst 1.02 -> 0.27. On 24
+whole-cascade scenes (real stage I; terrace, lab ring, crowd, periodic, seeds 0-5, 40 s): 67 -> 84
+of 84, median 0.24 -> 0.04 frame, and Stage V's offsets worst 0.89 -> 0.13 frame.
+
 References
 ----------
 Hartley, R. & Zisserman, A. *Multiple View Geometry*, 2nd ed.: sec. 11.2 (normalised 8-point
