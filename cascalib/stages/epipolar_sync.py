@@ -45,7 +45,7 @@ from cascalib.geometry import norm_xy
 from cascalib.nanstats import joint_extent, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import associate, interpolate_views
-from cascalib.stages.reconstruct import prepare, views_at
+from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.sync import irls_l1
 from cascalib.tracks import Tracks
@@ -54,10 +54,6 @@ __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
            "hartley_normalization", "sampson_distance"]
 
 log = logging.getLogger(__name__)
-
-#: Golden-ratio step of the fractional parts of the association times (see :func:`_times`).
-_GOLDEN = 0.6180339887498949
-
 
 @dataclass(frozen=True)
 class PairShift:
@@ -226,16 +222,6 @@ def _fit_fundamental(a: _View, b: _View, scale_px: float, n_iter: int
 def _huber_cost(d: NDArray[np.float64], k: float) -> float:
     """Mean Huber loss of distances ``d`` (px^2)."""
     return float(np.mean(np.where(d < k, 0.5 * d**2, k * (d - 0.5 * k))))
-
-
-def _times(data_times: NDArray[np.float64], n: int) -> NDArray[np.float64]:
-    """About ``n`` reference times spread over the recording, each moved by a fraction of a
-    frame in [-0.5, 0.5) (golden-ratio steps): a detection interpolated between two frames
-    averages their noise, so at whole reference frames the search would prefer shifts that
-    put the other camera half-way between its frames."""
-    t = data_times[:: max(1, len(data_times) // n)]
-    frac = np.mod(np.arange(t.size) * _GOLDEN, 1.0) - 0.5
-    return np.clip(t + frac, data_times[0], data_times[-1])
 
 
 def _pixels(cam: Camera, uv: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -445,7 +431,7 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
     """
     rng = np.random.default_rng(rng)
     data = prepare(list(tracks), calibration)
-    data = replace(data, times=_times(data.times, n_times))
+    data = clock_check_times(data, n_times)
     joints = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
     kps = [np.ascontiguousarray(k[:, :, joints, :2]) for k in data.keypoints]
     cams = list(calibration.cameras)

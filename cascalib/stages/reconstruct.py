@@ -36,8 +36,9 @@ from cascalib.tracks import Tracks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SessionData", "match_calibration", "prepare", "views_at", "triangulate_groups",
-           "persons_per_time", "poses_by_slot", "reconstruct", "triangulate_poses"]
+__all__ = ["SessionData", "clock_check_times", "match_calibration", "prepare", "views_at",
+           "triangulate_groups", "persons_per_time", "poses_by_slot", "reconstruct",
+           "triangulate_poses"]
 
 
 @dataclass
@@ -95,6 +96,24 @@ def _frame_links(tracks: Tracks) -> NDArray[np.int64]:
         links.flags.writeable = False
         _LINKS[tracks] = links
     return links
+
+
+def clock_check_times(data: SessionData, n: int) -> SessionData:
+    """``data`` at about ``n`` reference times spread over the recording, each moved by a
+    fraction of a frame in [-0.5, 0.5), for searches that shift a camera's clock.
+
+    Why the fractions: a detection interpolated between two frames averages their noise, so it
+    lies closer to the truth than a detection at a frame. At whole reference frames every group
+    sits at the same fraction of a camera's frame, and that fraction moves with the offset being
+    searched: the search then prefers offsets that put the camera half-way between its frames
+    (with the true geometry, stage V's clock search moved clocks 0.3 frame off the truth).
+    Spread fractions make the noise averaging the same for every candidate offset. They are a
+    low-discrepancy sequence (golden-ratio steps): evenly spread even for a few dozen times,
+    where random ones would leave a cost at the mercy of the draw.
+    """
+    times = data.times[:: max(1, len(data.times) // n)]
+    frac = np.mod(np.arange(times.size) * 0.6180339887498949, 1.0) - 0.5
+    return replace(data, times=np.clip(times + frac, data.times[0], data.times[-1]))
 
 
 def views_at(data: SessionData, cameras: list[Camera]) -> list[NDArray[np.float64]]:

@@ -39,6 +39,7 @@ from cascalib.stages.person_size import bone_pairs, split_by_size
 from cascalib.stages.quality import CameraQuality, assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import (
     SessionData,
+    clock_check_times,
     persons_per_time,
     poses_by_slot,
     prepare,
@@ -451,30 +452,11 @@ def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
     return quality
 
 
-def _check_times(data: SessionData, cfg: RefineConfig) -> SessionData:
-    """``cfg.time_check_frames`` reference times spread over the recording, each moved by a
-    fraction of a frame in [-0.5, 0.5).
-
-    Why the fractions: a detection interpolated between two frames averages their noise, so it
-    lies closer to the truth than a detection at a frame. At whole reference frames every group
-    sits at the same fraction of a camera's frame, and that fraction moves with the offset being
-    searched: the search then prefers offsets that put the camera half-way between its frames
-    (with the true geometry, it moved clocks 0.3 frame off the truth). Spread fractions make
-    the noise averaging the same for every candidate offset.
-    """
-    step = max(1, len(data.times) // cfg.time_check_frames)
-    times = data.times[::step]
-    lo, hi = data.times[0], data.times[-1]
-    # a low-discrepancy sequence (golden-ratio steps): evenly spread fractions even for a few
-    # dozen times, where random ones would leave the cost at the mercy of the draw
-    frac = np.mod(np.arange(times.size) * 0.6180339887498949, 1.0) - 0.5
-    return replace(data, times=np.clip(times + frac, lo, hi))
-
-
 def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                joints: NDArray[np.int64], height: float) -> tuple[float, Association]:
     """Median reprojection error of all groups triangulated by all cameras at these clocks, at
-    the reference times of ``data`` (see :func:`_check_times`)."""
+    the reference times of ``data`` (see
+    :func:`~cascalib.stages.reconstruct.clock_check_times`)."""
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
                       ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
                       consistency=cfg.consistency, link=False)  # no tracks needed
@@ -495,7 +477,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
     ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
     """
-    data = _check_times(data, cfg)  # the same times for every cost compared
+    data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
     cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
     for _ in range(cfg.time_iterations):
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
