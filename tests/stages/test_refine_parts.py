@@ -226,14 +226,14 @@ def test_clock_search_uses_every_moving_joint():
     per-person median distances on a grid of offsets: 0.04-0.07 frame off here (0.3 on a
     simulated crowd). The normal equation weighs every joint by how fast it moves.
     """
-    from cascalib.stages.refine import _check_times
+    from cascalib.stages.reconstruct import clock_check_times
     cfg = RefineConfig()
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     worst = 0.0
     for seed in (0, 2):
         sc = make_scene(n_frames=200, n_persons=6, noise_px=3.0, offsets=(0, 0.3, -0.4, 0.2),
                         seed=seed)
-        data = _check_times(_prepare(sc.tracks, sc.truth), cfg)
+        data = clock_check_times(_prepare(sc.tracks, sc.truth), cfg.time_check_frames)
         cams = list(sc.truth)
         assoc = associate(_views(data, cams), cams, data.times, height=1.72,
                           ankle_height=0.085, gate_m=0.6, consistency=0.3)
