@@ -47,6 +47,7 @@ from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import associate, interpolate_views
 from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
+from cascalib.stages.single_view_solver import hartley_scale
 from cascalib.stages.sync import irls_l1
 from cascalib.tracks import Tracks
 
@@ -54,6 +55,7 @@ __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
            "hartley_normalization", "sampson_distance"]
 
 log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class PairShift:
@@ -119,7 +121,7 @@ def hartley_normalization(x: NDArray[np.float64]) -> tuple[NDArray[np.float64],
     """Homogeneous points (N, 3) centred on their mean with mean distance sqrt(2), and the
     3x3 transform ``T`` that maps the input's homogeneous coordinates to them (H&Z 4.4.4)."""
     mean = x.mean(0)
-    s = np.sqrt(2.0) / max(float(np.mean(norm_xy(x - mean))), 1e-12)
+    s = hartley_scale(x, mean)
     T = np.array([[s, 0.0, -s * mean[0]], [0.0, s, -s * mean[1]], [0.0, 0.0, 1.0]])
     return np.c_[(x - mean) * s, np.ones(len(x))], T
 
@@ -204,8 +206,6 @@ def _fit_fundamental(a: _View, b: _View, scale_px: float, n_iter: int
     """:func:`fit_fundamental` of normalised views."""
     rows = (a.p[:, :, None] * b.p[:, None, :]).reshape(-1, 9)
     w = np.ones(len(a.h))
-    F = np.eye(3)
-    d = np.zeros(len(a.h))
     for _ in range(n_iter + 1):
         _, vecs = np.linalg.eigh((rows.T * w) @ rows)
         U, S, Vt = np.linalg.svd(vecs[:, 0].reshape(3, 3))

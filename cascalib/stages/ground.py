@@ -349,15 +349,15 @@ def _hungarian_ids(xy: NDArray[np.float64], ok: NDArray[np.bool_], max_gap: int,
             for i, k in pairs:
                 if d[i][k] <= gate[k]:
                     got[i] = k
+        # matched tracks move on, the rest start new ones (appended: matched indices hold)
         for i, k in enumerate(got):
             slot = slots_l[lo + i]
             if k >= 0:
                 ids[f, slot] = t_id[k]
                 t_f[k] = f
                 t_xy[k] = pts[i]
-        for i, k in enumerate(got):
-            if k < 0:
-                ids[f, slots_l[lo + i]] = next_id
+            else:
+                ids[f, slot] = next_id
                 t_id.append(next_id)
                 t_f.append(f)
                 t_xy.append(pts[i])
