@@ -66,7 +66,7 @@ def resynchronize(tracks: list[Tracks], calibration: Calibration, *, height: flo
     ordered = [by_name[n] for n in calibration.names]
     # a calibrated camera is its own "plane frame" with the common ground: stages II-III apply
     aligned = align_cameras(ordered, list(calibration.cameras), align,
-                            reference=calibration.reference_camera, rng=rng)
+                            reference=calibration.reference_camera, rng=rng, height=height)
     clocks = {c.name: (c.time_offset, c.time_rate) for c in aligned.calibration}
     cameras = [c.with_(time_offset=clocks[c.name][0], time_rate=clocks[c.name][1])
                for c in calibration.cameras]
