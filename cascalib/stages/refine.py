@@ -11,7 +11,7 @@ Cascade of one call to :func:`refine`::
     tracks --interpolate to reference times--> views
     views --associate (ground position, Hungarian, triangulation check)--> groups
     groups --select (coverage of time, floor, image)--> graph --LM--> cameras
-    cameras --refine time offsets, re-associate--> (repeat n_rounds)
+    cameras --refine time offsets, re-associate--> (repeat n_rounds, more while they still move)
     [principal-point pass (upright torsos added), kept if it helps on held-out frames, then
      solved again with bone targets from its own cameras; lens-distortion pass, likewise kept]
     cameras --triangulate every frame--> poses3d, quality report
@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError, RefinementFailed
-from cascalib.geometry import norm_xy
+from cascalib.geometry import norm_xy, rotation_angle_deg
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate, ground_velocity
 from cascalib.stages.frame_selection import select_groups, usable_groups
@@ -494,6 +494,22 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     return cameras
 
 
+def camera_change(before: list[Camera], after: list[Camera]) -> tuple[float, float]:
+    """Largest rotation (deg, geodesic) and relative focal change of any camera between two
+    versions of a rig in one world frame."""
+    rot = max(rotation_angle_deg(b.R @ a.R.T) for a, b in zip(before, after, strict=True))
+    focal = max(abs(b.focal / a.focal - 1) for a, b in zip(before, after, strict=True))
+    return rot, focal
+
+
+def _round_limits(cfg: RefineConfig) -> tuple[int, int]:
+    """Least and most solve / re-associate rounds (see ``RefineConfig.n_rounds``)."""
+    if cfg.n_rounds is not None:
+        return cfg.n_rounds, cfg.n_rounds
+    least = 2 if cfg.principal_point != "never" else 3
+    return least, max(least, cfg.max_rounds)
+
+
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
            progress: Callable[[float], None] | None = None,
@@ -532,15 +548,17 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     """
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
-    # steps: 3 per round, the two intrinsics passes, the reconstruction (roughly equal times)
-    n_rounds = cfg.n_rounds or (2 if cfg.principal_point != "never" else 3)
-    n_steps, done = 3 * n_rounds + 3, 0
+    min_rounds, max_rounds = _round_limits(cfg)
+    # steps: 3 per round, the two intrinsics passes, the reconstruction (roughly equal times);
+    # an extra round adds 3 steps, and the fraction never goes back
+    n_steps, done, shown = 3 * min_rounds + 3, 0, 0.0
 
     def step() -> None:
-        nonlocal done
+        nonlocal done, shown
         done += 1
+        shown = max(shown, min(done / n_steps, 1.0))
         if progress is not None:
-            progress(min(done / n_steps, 1.0))
+            progress(shown)
 
     data = prepare(tracks, initial)
     cameras = list(initial.cameras)
@@ -555,7 +573,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     targets: dict[int, NDArray] | None = None
     # the rounds need enough person-frames to choose max_groups from, not every frame
     rounds = replace(data, times=data.times[::max(1, -(-len(data.times) // cfg.round_frames))])
-    for r in range(n_rounds):
+    r = 0
+    while True:
         refined = r > 0
         assoc = associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
                           ankle_height=cfg.ankle_height,
@@ -575,15 +594,24 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
                   targets=targets, fixed=fixed)
         prob = _make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)
+        before = cameras
         cameras, _, info, graph, values = solve(prob, cfg)
         solves.append(info)
         step()
-        if cfg.use_bones and r == n_rounds - 1:  # for the intrinsics passes (same association)
-            assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
         if cfg.refine_time:  # after the last round too: the final association uses it
             cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
                                     anchor_rates=stage3_rates)
         step()
+        r += 1
+        moved_deg, moved_focal = camera_change(before, cameras)
+        log.info("round %d moved the cameras by up to %.3f deg, focal %.2f %%", r, moved_deg,
+                 100 * moved_focal)
+        if r >= max_rounds or (r >= min_rounds and moved_deg <= cfg.round_tolerance_deg
+                               and moved_focal <= cfg.round_tolerance_focal):
+            break
+        n_steps += 3 * (r >= min_rounds)  # one more round than planned
+    if cfg.use_bones:  # for the intrinsics passes (same association; clocks do not enter)
+        assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
     distortion, n_selected, n_passes = False, sel.size, 0
     passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
               ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups)]

@@ -66,7 +66,19 @@ class RefineConfig(BaseModel):
         "0.42 / 0.55 / 2.33 deg, 2 rounds 0.34 / 0.47 / 1.72 (offsets max 0.25 frame both), "
         "1 s less per round on 4 cameras x 3000 frames x 5 persons. Without it (principal "
         "point at the image centre), from a start 3 deg / 0.3 m / 0.5 frame off (70 frames): "
-        "2 rounds 0.44 deg median, 3 rounds 0.20, 4 rounds 0.09.")
+        "2 rounds 0.44 deg median, 3 rounds 0.20, 4 rounds 0.09. With None, more rounds "
+        "follow while the last one still moved the cameras (max_rounds, round_tolerance_deg, "
+        "round_tolerance_focal); a number is exactly that many rounds.")
+    max_rounds: int = Field(
+        6, ge=1, description="Most rounds when n_rounds is None. From a start 3 deg / 0.3 m / "
+        "5 % focal off (bench_refine.py, terrace seed 0) the rounds moved the cameras by up to "
+        "3.8, 2.8, 2.1, 0.13, 0.06 deg: 2 rounds left the principal-point pass in a wrong "
+        "basin (3.0 deg at the end, 0.44 with more rounds, as from the true rig).")
+    round_tolerance_deg: float = Field(
+        0.2, gt=0, description="A round that rotated no camera by more (deg, geodesic) and "
+        "changed no focal length by more than round_tolerance_focal ends the rounds.")
+    round_tolerance_focal: float = Field(
+        0.01, gt=0, description="Relative focal change of the same test.")
     round_frames: int = Field(
         1500, ge=100, description="Reference frames (evenly spread) associated in each round to "
         "choose the graph's person-frames from; every frame is reconstructed at the end.")

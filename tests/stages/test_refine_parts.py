@@ -17,7 +17,7 @@ from cascalib.stages.frame_selection import select_groups
 from cascalib.stages.quality import assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import prepare as _prepare
 from cascalib.stages.reconstruct import views_at as _views
-from cascalib.stages.refine import refine
+from cascalib.stages.refine import camera_change, refine
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.time_refine import refine_offsets
 from cascalib.stages.triangulation import triangulate
@@ -379,3 +379,31 @@ def test_split_by_size_rejoins_pieces_of_one_person():
     out = split_by_size(pts, tracks, times, bones, classes)
     assert out[0] == out[-1]
     assert out[100] != out[0]
+
+
+def test_camera_change_is_the_largest_geodesic_rotation_and_focal_change():
+    scene = make_scene(n_frames=10, n_persons=1, noise_px=0.0, offsets=(0, 0, 0, 0))
+    cams = list(scene.truth.cameras)
+    moved = perturb(scene.truth, rot_deg=2.0, pos_m=0.0, focal_rel=0.03, offset_frames=0.0)
+    rot, focal = camera_change(cams, list(moved.cameras))
+    assert rot == pytest.approx(2.0, abs=1e-6)  # perturb turns every camera by 2 deg
+    assert focal == pytest.approx(max(abs(b.focal / a.focal - 1)
+                                      for a, b in zip(cams, moved.cameras, strict=True)))
+    assert camera_change(cams, cams) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize(("tolerance", "n_rounds", "solves"),
+                         [(1e3, None, 3), (1e-9, None, 5), (1e-9, 2, 2)])
+def test_rounds_continue_while_the_cameras_still_move(tolerance, n_rounds, solves):
+    """With n_rounds None: at least 3 rounds (no principal-point pass), more while a round moved
+    a camera by more than the tolerance, at most max_rounds; a number is exactly that many."""
+    scene = make_scene(n_frames=30, n_persons=2, noise_px=0.5, offsets=(0, 0, 0, 0), seed=3)
+    start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02, offset_frames=0.0)
+    cfg = RefineConfig(max_groups=40, distortion="never", principal_point="never",
+                       refine_time=False, n_rounds=n_rounds, max_rounds=5,
+                       round_tolerance_deg=tolerance, round_tolerance_focal=tolerance)
+    fractions = []
+    res = refine(scene.tracks, start, cfg, height=float(scene.heights.mean()), rng=0,
+                 progress=fractions.append)
+    assert len(res.solves) == solves
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
