@@ -84,6 +84,11 @@ class PeopleConfig(BaseModel):
         "synchronisation, Sec. 5.1).")
     circle_radius: tuple[float, float] = Field(
         default=(1.5, 2.5), description="Circle radius range (m) when periodic.")
+    circle_wobble_m: float = Field(
+        default=0.0, ge=0.0, lt=1.0, description="When periodic: each lap's radius wobbles by "
+        "this s.d. (m), like a person walking the same circuit again (a perfect circle at a "
+        "constant speed looks the same at every time shift, up to a rotation about its centre "
+        "and the gait phase: no method can synchronise it; the paper's Human3.6M walkers vary).")
     walk_trunk_pitch_rad: float = Field(
         default=0.06, ge=0.0, le=0.3,
         description="Forward lean of the trunk at full walking speed (rad; 0.06 = 3.4 deg, "
@@ -276,8 +281,19 @@ def _circle_path(cfg: PeopleConfig, length: float, rng: np.random.Generator
     a0 = rng.uniform(-np.pi, np.pi)
     direction = rng.choice([-1.0, 1.0])
     a = a0 + direction * s / r
-    pts = c + r * np.stack([np.cos(a), np.sin(a)], -1)
-    return pts, a + direction * np.pi / 2
+    if cfg.circle_wobble_m <= 0:  # (no draws: scenes without wobble stay as they were)
+        pts = c + r * np.stack([np.cos(a), np.sin(a)], -1)
+        return pts, a + direction * np.pi / 2
+    # per lap, radius terms of 2 and 3 waves around the circle, faded in and out at the lap's
+    # ends so that the path stays continuous
+    lap = np.floor((a - a0) * direction / (2 * np.pi)).astype(np.int64)
+    wob = rng.normal(0, cfg.circle_wobble_m, (int(lap.max()) + 1, 2))[lap]
+    frac = (a - a0) * direction / (2 * np.pi) - lap
+    blend = 0.5 - 0.5 * np.cos(2 * np.pi * frac)
+    rr = r + blend * (wob[:, 0] * np.cos(2 * a) + wob[:, 1] * np.sin(3 * a))
+    pts = c + rr[:, None] * np.stack([np.cos(a), np.sin(a)], -1)
+    d = np.gradient(pts, axis=0)
+    return pts, np.arctan2(d[:, 1], d[:, 0])
 
 
 def _timeline(cfg: PeopleConfig, duration: float, speed: float, stride: float,
