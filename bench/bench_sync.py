@@ -26,12 +26,16 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "stages"))
-from align_scene import make_scene, simulated_windows, stage1_like  # noqa: E402
+from align_scene import (  # noqa: E402
+    make_scene,
+    paper_walker_scene,
+    simulated_windows,
+    stage1_like,
+)
 
 from cascalib.metrics import compare_calibrations  # noqa: E402
 from cascalib.simulate import simulate  # noqa: E402
@@ -145,29 +149,6 @@ def table_paper(n_subjects: int) -> None:
               f"{pm[2]:6.2f}")
 
 
-def _paper_full_scene(off: int, subject: int, n_frames: int = 1000
-                      ) -> tuple[list[Any], list[Any], float]:
-    """The paper's experiment in the full simulator: one person (26 joints, detector noise,
-    missed and swapped joints) walking laps of a circle of 1.66 m radius at 1.3 m/s (8 s per
-    lap) whose radius wobbles by 0.15 m s.d. from lap to lap, 2 cameras at 50 fps; the second
-    video starts ``off`` frames later. Returns the tracks, stage-I-like plane cameras (focal
-    3 %, tilt 1 deg, scale 5 %) and the true offset."""
-    sc = simulate("periodic", seed=100 + subject, **{
-        "people.n_persons": 1, "people.speed_range": (1.3, 1.3),
-        "people.circle_radius": (1.66, 1.66), "people.circle_wobble_m": 0.15,
-        "people.action_prob": 0.0, "rig.n_cameras": 2, "timing.fps": (50.0,),
-        "timing.max_offset_s": 0.0, "timing.drift_sd": 0.0, "timing.late_start_prob": 0.0,
-        "timing.early_stop_prob": 0.0, "duration_s": (n_frames + max(PAPER)) / 50 + 1})
-    (ta, tb), (ca, cb) = sc.tracks, sc.truth.cameras
-    cut = [slice(0, n_frames), slice(off, off + n_frames)]
-    tracks = [t.with_(keypoints=t.keypoints[sl], timestamps=None,
-                      track_ids=None if t.track_ids is None else t.track_ids[sl])
-              for t, sl in zip((ta, tb), cut, strict=True)]
-    rng = np.random.default_rng(subject)
-    plane = [stage1_like(c, rng, errors=True) for c in (ca, cb)]
-    return tracks, plane, cb.time_offset + off * cb.time_rate - ca.time_offset
-
-
 def table_paper_full(n_subjects: int) -> None:
     print("\n## 2b. The same experiment in the full simulator: 26 joints with detector noise, "
           "a circle of 1.66 m radius wobbling 0.15 m from lap to lap, stage-I errors (focal 3 %, "
@@ -178,7 +159,7 @@ def table_paper_full(n_subjects: int) -> None:
     for off in PAPER:
         err, flagged, wrong_flagged = [], 0, 0
         for s in range(n_subjects):
-            tracks, plane, true_off = _paper_full_scene(off, s)
+            tracks, plane, true_off = paper_walker_scene(off, s)
             res = align_cameras(tracks, plane, rng=s)
             err.append(res.calibration.cameras[1].time_offset - true_off)
             flag = bool(res.flags["cam1"])

@@ -35,7 +35,7 @@ from cascalib.errors import EstimationFailed, InputError
 from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
 from cascalib.stages.consensus import CandidateEdge, vote_cameras
-from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks
+from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks, pair_cost
 from cascalib.stages.ground import GroundTracks, ground_trajectories
 from cascalib.stages.icp import (
     IcpResult,
@@ -46,6 +46,7 @@ from cascalib.stages.icp import (
     icp_pair,
     refine_sync,
 )
+from cascalib.stages.reconstruct import prepare
 from cascalib.stages.rotation import rotation_search
 from cascalib.stages.sync import GridTrack, SyncCurve, resample_tracks, search_offsets, solve_time
 from cascalib.tracks import Tracks
@@ -164,10 +165,55 @@ def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) ->
         stance_smooth=cfg.stance_smooth_seconds * rate)
 
 
+@dataclass(frozen=True)
+class _Joints:
+    """What the epipolar check of ambiguous pairs needs: every camera's canonical detections
+    and frame links, its plane-frame camera, its frame-rate ratio to the reference and the
+    person height prior."""
+
+    keypoints: list[NDArray[np.float64]]
+    links: list[NDArray[np.int64]]
+    cameras: list[Camera]
+    rho: list[float]
+    height: float
+
+
+def _epipolar_choice(i: int, j: int, fits: dict[int, SyncFit], joints: _Joints,
+                     cfg: AlignConfig, rng: np.random.Generator
+                     ) -> tuple[int, float] | None:
+    """The candidate whose clock and ground alignment give the lowest epipolar cost of the
+    pair's joints (:func:`~cascalib.stages.epipolar_sync.pair_cost`), and its cost over the
+    runner-up's. None unless two candidates could be compared."""
+    n_i = joints.keypoints[i].shape[0]
+    times = np.linspace(0.0, (n_i - 1) * joints.rho[i], cfg.epipolar_times)
+    cam_i = joints.cameras[i].with_(time_offset=0.0, time_rate=joints.rho[i])
+    costs = {}
+    for k, fit in fits.items():
+        cam_j = _place(joints.cameras[j], fit.transform).with_(
+            time_offset=fit.offset, time_rate=fit.rate * joints.rho[j])
+        found = pair_cost([joints.keypoints[i], joints.keypoints[j]],
+                          [joints.links[i], joints.links[j]], [cam_i, cam_j], times,
+                          height=joints.height, max_points=cfg.epipolar_points, rng=rng)
+        if found is not None:
+            costs[k] = found[0]
+    if len(costs) < 2:
+        return None
+    best, second = sorted(costs, key=costs.__getitem__)[:2]
+    logger.info("pair %d-%d: epipolar costs of the candidates %s", i, j,
+                ", ".join(f"{fits[k].offset:.1f}: {c:.3g}" for k, c in costs.items()))
+    return best, costs[best] / max(costs[second], 1e-300)
+
+
 def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                 lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
-                fps_ref: float, cfg: AlignConfig, rng: np.random.Generator) -> PairAlignment:
-    """Offset candidates, ICP verification and continuous refinement for one pair."""
+                fps_ref: float, cfg: AlignConfig, rng: np.random.Generator,
+                joints: _Joints | None = None) -> PairAlignment:
+    """Offset candidates, ICP verification and continuous refinement for one pair.
+
+    With ``joints``, an ambiguous pair (runner-up evidence above ``cfg.ambiguity_ratio`` of
+    the best) is decided by the epipolar geometry of the people's joints among its best
+    candidates (:func:`_epipolar_choice`) when that is decisive (cost ratio at most
+    ``cfg.epipolar_decisive``); it stays flagged ambiguous."""
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
     longest = max(coarse[i].length, coarse[j].length) * coarse[i].step
     curve = search_offsets(
@@ -203,6 +249,21 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
     assert best is not None
     fit = _refine_pair(i, j, int(round(curve.candidates[k].offset)), best, fine, lanes, noise,
                        fps_ref, cfg, sr, rng)
+    if joints is not None and fit is not None and ambiguity > cfg.ambiguity_ratio:
+        fits = {k: fit}
+        for m in np.argsort(scores)[::-1][1:cfg.epipolar_candidates]:
+            r = results[m]
+            if r is not None and scores[m] >= 0.5 * max(scores):
+                alt = _refine_pair(i, j, int(round(curve.candidates[m].offset)), r, fine,
+                                   lanes, noise, fps_ref, cfg, sr, rng)
+                if alt is not None:
+                    fits[int(m)] = alt
+        choice = _epipolar_choice(i, j, fits, joints, cfg, rng) if len(fits) > 1 else None
+        if choice is not None and choice[1] <= cfg.epipolar_decisive:
+            # the pair keeps its ambiguity (and its flag): the check only compares the
+            # candidates it was given, and the true one may not be among them
+            k = choice[0]
+            fit = fits[k]
     if fit is None:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0, icp_angles=angles,
                              evidence_sigma=sig)
@@ -536,10 +597,15 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
     report = progress or (lambda fraction: None)
     report(0.2)
+    joints = None
+    if cfg.epipolar_candidates > 1:
+        data = prepare(tracks, Calibration(plane_cameras))
+        joints = _Joints(data.keypoints, data.links, plane_cameras, rho, height)
     pairs = []
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
         for pair in pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
-                                                   fps_ref, cfg, np.random.default_rng(seeds[k])),
+                                                   fps_ref, cfg, np.random.default_rng(seeds[k]),
+                                                   joints),
                              range(len(ij))):
             pairs.append(pair)
             report(0.2 + 0.75 * len(pairs) / len(ij))

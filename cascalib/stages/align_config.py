@@ -142,6 +142,19 @@ class AlignConfig(BaseModel):
         "iteration; a camera pair whose best shift lies on the window's edge is searched again "
         "over twice the window (stage IV once left a periodic walk 2.5 frames off); each later "
         "iteration searches half as far.")
+    epipolar_candidates: int = Field(
+        3, ge=1, description="An ambiguous pair (see ambiguity_ratio) is decided among its "
+        "best this many candidates (those with at least half the best ICP evidence) by the "
+        "epipolar geometry of the people's joints at each candidate's clock and ground "
+        "alignment; 1 turns the check off. One lap off, a walker's ground path coincides to "
+        "decimetres, its joints fit no two-view geometry.")
+    epipolar_decisive: float = Field(
+        0.9, gt=0, le=1, description="The epipolar check decides a pair only if its best "
+        "candidate's cost is at most this fraction of the runner-up's; else the ICP evidence "
+        "stands. The pair stays flagged ambiguous either way (the true candidate may not be "
+        "among those checked). On "
+        "bench_sync's table 2b the true candidate's cost was 0.54-0.78 of the next, and one "
+        "wrong choice came at 0.95.")
     epipolar_iterations: int = Field(
         2, ge=1, description="Most searches: search, correct and associate again (the "
         "association at the current clocks holds each search a little towards them: a first "

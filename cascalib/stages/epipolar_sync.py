@@ -52,7 +52,7 @@ from cascalib.stages.sync import irls_l1
 from cascalib.tracks import Tracks
 
 __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
-           "hartley_normalization", "sampson_distance"]
+           "hartley_normalization", "pair_cost", "sampson_distance"]
 
 log = logging.getLogger(__name__)
 
@@ -381,6 +381,60 @@ def _search_pairs(obs: NDArray[np.float64], times: NDArray[np.float64],
     # numpy's interpolation and products release the GIL: two pairs at a time
     with ThreadPoolExecutor(max_workers=n_workers) as pool:
         return [p for p in pool.map(one, range(len(ij))) if p is not None]
+
+
+def pair_cost(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64]],
+              cams: list[Camera], times: NDArray[np.float64], *, height: float,
+              huber_px: float = 2.0, max_points: int = 8000,
+              rng: np.random.Generator | int | None = None) -> tuple[float, int] | None:
+    """How well one two-view geometry explains two cameras' people at their clocks.
+
+    Persons are matched by ground position alone (stage V's first-round gate, no triangulation
+    check: with a wrong clock the check would keep just the coincidences that look right), a
+    fundamental matrix is fitted robustly to their joints, and the cost is the mean Huber
+    loss of the Sampson distances, as in the clock search. It compares *hypotheses* of one
+    pair: each candidate offset of a periodic walk with its own ground alignment. One lap off,
+    the ground paths of a walker coincide to decimetres, but the joints seen at different
+    instants fit no epipolar geometry.
+
+    Parameters
+    ----------
+    keypoints : list of ndarray, shape (F_c, P_c, 26, 3)
+        The two cameras' canonical detections.
+    links : list of ndarray, shape (F_c, P_c)
+        Their frame links.
+    cams : list of Camera
+        The two cameras in one ground frame with the clocks to test.
+    times : ndarray, shape (T,)
+        Reference times compared.
+    height : float
+        Mean person height (m) for the ground positions.
+
+    Returns
+    -------
+    (cost, n_points), or None with fewer than 10 shared person-frames.
+    """
+    first = RefineConfig()
+    views = [interpolate_views(k, lk, (times - c.time_offset) / c.time_rate)
+             for k, lk, c in zip(keypoints, links, cams, strict=True)]
+    assoc = associate(views, cams, times, height=height, ankle_height=first.ankle_height,
+                      gate_m=first.gate_m, consistency=np.inf, align_ground=first.align_ground,
+                      link=False)
+    joints = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
+    obs = assoc.obs[:, :, joints]
+    ok = (np.nan_to_num(obs[:, 0, :, 2]) >= 0.3) & (np.nan_to_num(obs[:, 1, :, 2]) >= 0.3)
+    groups = np.flatnonzero(ok.sum(1) >= 8)
+    if groups.size < 10:
+        return None
+    per_group = ok[groups].sum() / groups.size
+    if groups.size * per_group > max_points:
+        rng = np.random.default_rng(rng)
+        groups = np.sort(rng.choice(groups, int(max_points / per_group), replace=False))
+    sel = ok[groups]
+    xa = _pixels(cams[0], obs[groups, 0, :, :2])[sel]
+    xb = _pixels(cams[1], obs[groups, 1, :, :2])[sel]
+    d = _fit_fundamental(_View.of(xa), _View.of(xb), huber_px, 4)[1]
+    return _huber_cost(d, huber_px), int(sel.sum())
 
 
 def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: float = 1.70,

@@ -208,3 +208,29 @@ def simulated_windows(preset: str, seed: int, *, errors: bool
     rng = np.random.default_rng(seed)
     tracks, truth = cut_windows(sc.tracks, sc.truth, 0.45, rng)
     return tracks, truth, [stage1_like(c, rng, errors=errors) for c in truth.cameras]
+
+
+def paper_walker_scene(offset: int, subject: int, *, n_frames: int = 1000, max_offset: int = 200
+                       ) -> tuple[list[Tracks], list[Camera], float]:
+    """The paper's sync experiment in the full simulator: one person (26 joints, detector
+    noise, missed and swapped joints) walking laps of a circle of 1.66 m radius at 1.3 m/s
+    (8 s per lap) whose radius wobbles by 0.15 m s.d. from lap to lap, 2 cameras at 50 fps;
+    the second video starts ``offset`` frames (at most ``max_offset``) later. Returns the
+    tracks, stage-I-like plane cameras (focal 3 %, tilt 1 deg, scale 5 %) and the true offset
+    of the second camera."""
+    from cascalib.simulate import simulate  # the simulator is only needed here
+
+    sc = simulate("periodic", seed=100 + subject, **{
+        "people.n_persons": 1, "people.speed_range": (1.3, 1.3),
+        "people.circle_radius": (1.66, 1.66), "people.circle_wobble_m": 0.15,
+        "people.action_prob": 0.0, "rig.n_cameras": 2, "timing.fps": (50.0,),
+        "timing.max_offset_s": 0.0, "timing.drift_sd": 0.0, "timing.late_start_prob": 0.0,
+        "timing.early_stop_prob": 0.0, "duration_s": (n_frames + max_offset) / 50 + 1})
+    (ta, tb), (ca, cb) = sc.tracks, sc.truth.cameras
+    cut = [slice(0, n_frames), slice(offset, offset + n_frames)]
+    tracks = [t.with_(keypoints=t.keypoints[sl], timestamps=None,
+                      track_ids=None if t.track_ids is None else t.track_ids[sl])
+              for t, sl in zip((ta, tb), cut, strict=True)]
+    rng = np.random.default_rng(subject)
+    plane = [stage1_like(c, rng, errors=True) for c in (ca, cb)]
+    return tracks, plane, cb.time_offset + offset * cb.time_rate - ca.time_offset

@@ -16,8 +16,10 @@ from cascalib.stages.epipolar_sync import (
     epipolar_clocks,
     fit_fundamental,
     hartley_normalization,
+    pair_cost,
     sampson_distance,
 )
+from cascalib.stages.reconstruct import prepare
 
 
 def _two_views(rng: np.random.Generator, n: int, noise_px: float
@@ -139,3 +141,21 @@ def test_crowd_offsets_are_corrected() -> None:
     about half a frame off (bench_sync.py)."""
     sc = simulate("crowd", seed=1, duration_s=40.0)
     _corrected((sc.tracks, sc.truth), [0.0, 0.7, -0.6, 0.45], 0.25)
+
+
+def test_pair_cost_grows_with_the_clock_error(terrace: tuple[list, Calibration]) -> None:
+    tracks, truth = terrace
+    cams = list(truth.cameras[:2])
+    data = prepare(tracks[:2], Calibration(cams))
+    times = np.linspace(0, data.times[-1], 300)
+
+    def cost(shift: float) -> float:
+        moved = [cams[0], cams[1].with_(time_offset=cams[1].time_offset + shift)]
+        found = pair_cost(data.keypoints, data.links, moved, times, height=1.70, rng=0)
+        assert found is not None and found[1] > 5000  # joints of hundreds of person-frames
+        return found[0]
+
+    # measured 2.02, 3.04, 5.78: people seen 2 and 5 frames apart fit no two-view geometry
+    assert cost(0.0) < 0.75 * cost(2.0) < 0.75 * 0.75 * cost(5.0)
+    blind = [np.full_like(k, np.nan) for k in data.keypoints]
+    assert pair_cost(blind, data.links, cams, times, height=1.70) is None
