@@ -242,6 +242,23 @@ def _quadratic_minimum(x: NDArray[np.float64], y: NDArray[np.float64], centre: f
     return float(-c1 / (2 * c2)), float(2 * c2)
 
 
+def _shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,
+                   rng: np.random.Generator
+                   ) -> tuple[NDArray[np.int64], NDArray[np.bool_]] | None:
+    """Groups whose person two views share in at least 8 confident joints (confidence >=
+    0.3; a random subset of about ``max_points`` joints beyond that), and the (G, J) mask of
+    the joints both see; None with fewer than 10 such groups. ``obs_a``, ``obs_b``: (G, J, 3).
+    """
+    ok = (np.nan_to_num(obs_a[..., 2]) >= 0.3) & (np.nan_to_num(obs_b[..., 2]) >= 0.3)
+    groups = np.flatnonzero(ok.sum(1) >= 8)
+    if groups.size < 10:
+        return None
+    per_group = ok[groups].sum() / groups.size
+    if groups.size * per_group > max_points:
+        groups = np.sort(rng.choice(groups, int(max_points / per_group), replace=False))
+    return groups, ok
+
+
 def _pair_shift(i: int, j: int, obs: NDArray[np.float64], times: NDArray[np.float64],
                 keypoints: NDArray[np.float64], links: NDArray[np.int64], cams: list[Camera],
                 window: float, n_samples: int, max_points: int, huber_px: float,
@@ -255,13 +272,10 @@ def _pair_shift(i: int, j: int, obs: NDArray[np.float64], times: NDArray[np.floa
     ``widen``, a lowest sample on the window's edge (a larger error) is searched again over
     twice the window. None when the pair shares too few joints or the search finds nothing.
     """
-    ok = (np.nan_to_num(obs[:, i, :, 2]) >= 0.3) & (np.nan_to_num(obs[:, j, :, 2]) >= 0.3)
-    groups = np.flatnonzero(ok.sum(1) >= 8)
-    if groups.size < 10:
+    shared = _shared_groups(obs[:, i], obs[:, j], max_points, rng)
+    if shared is None:
         return None
-    per_group = ok[groups].sum() / groups.size
-    if groups.size * per_group > max_points:
-        groups = np.sort(rng.choice(groups, int(max_points / per_group), replace=False))
+    groups, ok = shared
     pair = _PairData(_pixels(cams[i], obs[groups, i, :, :2]), obs[groups, j, :, :2],
                      (times[groups] - cams[j].time_offset) / cams[j].time_rate, ok[groups],
                      # the same person within a quarter of its size (or 20 px) of where it was
@@ -422,14 +436,10 @@ def pair_cost(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64
                       link=False)
     joints = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
     obs = assoc.obs[:, :, joints]
-    ok = (np.nan_to_num(obs[:, 0, :, 2]) >= 0.3) & (np.nan_to_num(obs[:, 1, :, 2]) >= 0.3)
-    groups = np.flatnonzero(ok.sum(1) >= 8)
-    if groups.size < 10:
+    shared = _shared_groups(obs[:, 0], obs[:, 1], max_points, np.random.default_rng(rng))
+    if shared is None:
         return None
-    per_group = ok[groups].sum() / groups.size
-    if groups.size * per_group > max_points:
-        rng = np.random.default_rng(rng)
-        groups = np.sort(rng.choice(groups, int(max_points / per_group), replace=False))
+    groups, ok = shared
     sel = ok[groups]
     xa = _pixels(cams[0], obs[groups, 0, :, :2])[sel]
     xb = _pixels(cams[1], obs[groups, 1, :, :2])[sel]
