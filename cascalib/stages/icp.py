@@ -509,7 +509,9 @@ def refine_sync(a: GridTrack, b: GridTrack, la: Lanes, lb: Lanes, icp: IcpResult
     rate = 1.0 + p[1] * 1e-3
     offset_at_zero = p[0] + u0 - rate * u0  # u_a = rate * u_b + offset_at_zero
     g = np.array([1.0, -u0 * 1e-3])
-    off_sd = float(np.sqrt(max(g @ cov[:2, :2] @ g, 0.0)))
+    with np.errstate(invalid="ignore"):  # a singular fit's covariance is inf: inf - inf
+        var = float(g @ cov[:2, :2] @ g)
+    off_sd = float(np.sqrt(max(var, 0.0))) if np.isfinite(var) else np.inf
     rate_sd = float(np.sqrt(max(cov[1, 1], 0.0)) * 1e-3)  # the measurement's s.d.
     tr = Similarity2D(float(p[2]), p[3:5].copy(), float(np.exp(p[5])))
     pb = predict(p)
