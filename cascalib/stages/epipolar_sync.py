@@ -44,7 +44,7 @@ from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
 from cascalib.nanstats import joint_extent, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import associate, interpolate_views
+from cascalib.stages.association import Association, associate, interpolate_views
 from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.single_view_solver import hartley_scale
@@ -242,6 +242,22 @@ def _quadratic_minimum(x: NDArray[np.float64], y: NDArray[np.float64], centre: f
     return float(-c1 / (2 * c2)), float(2 * c2)
 
 
+#: Canonical indices of the joints the fundamental matrices are fitted to (Stage V's).
+_JOINTS = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
+
+
+def _first_association(views: list[NDArray[np.float64]], cams: list[Camera],
+                       times: NDArray[np.float64], height: float, *,
+                       consistency: float | None = None, reference: int = 0) -> Association:
+    """Persons matched across cameras as in Stage V's first round (gates sized for the errors
+    stage IV leaves), without track links; ``consistency`` overrides its triangulation gate."""
+    first = RefineConfig()
+    return associate(views, cams, times, height=height, ankle_height=first.ankle_height,
+                     gate_m=first.gate_m,
+                     consistency=first.consistency if consistency is None else consistency,
+                     align_ground=first.align_ground, reference=reference, link=False)
+
+
 def _shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,
                    rng: np.random.Generator
                    ) -> tuple[NDArray[np.int64], NDArray[np.bool_]] | None:
@@ -428,14 +444,10 @@ def pair_cost(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64
     -------
     (cost, n_points), or None with fewer than 10 shared person-frames.
     """
-    first = RefineConfig()
     views = [interpolate_views(k, lk, (times - c.time_offset) / c.time_rate)
              for k, lk, c in zip(keypoints, links, cams, strict=True)]
-    assoc = associate(views, cams, times, height=height, ankle_height=first.ankle_height,
-                      gate_m=first.gate_m, consistency=np.inf, align_ground=first.align_ground,
-                      link=False)
-    joints = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
-    obs = assoc.obs[:, :, joints]
+    assoc = _first_association(views, cams, times, height, consistency=np.inf)
+    obs = assoc.obs[:, :, _JOINTS]
     shared = _shared_groups(obs[:, 0], obs[:, 1], max_points, np.random.default_rng(rng))
     if shared is None:
         return None
@@ -496,19 +508,16 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
     rng = np.random.default_rng(rng)
     data = prepare(list(tracks), calibration)
     data = clock_check_times(data, n_times)
-    joints = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
+    joints = _JOINTS
     kps = [np.ascontiguousarray(k[:, :, joints, :2]) for k in data.keypoints]
     cams = list(calibration.cameras)
     n_cams = len(cams)
     total = np.zeros(n_cams)
-    first = RefineConfig()  # stage V's first association: sized for stage-IV errors
     pairs: list[PairShift] = []
     accepted = np.zeros(n_cams, dtype=bool)
     for it in range(iterations):
-        assoc = associate(views_at(data, cams), cams, data.times, height=height,
-                          ankle_height=first.ankle_height, gate_m=first.gate_m,
-                          consistency=first.consistency, align_ground=first.align_ground,
-                          reference=data.reference, link=False)
+        assoc = _first_association(views_at(data, cams), cams, data.times, height,
+                                   reference=data.reference)
         # the first search spans the window (twice it for a pair whose best shift lies on its
         # edge); later ones start closer and look half as far
         search = (window, 9, True) if it == 0 else (window / 2**it, 7, False)
