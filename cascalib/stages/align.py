@@ -251,13 +251,16 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                        fps_ref, cfg, sr, rng)
     if joints is not None and fit is not None and ambiguity > cfg.ambiguity_ratio:
         fits = {k: fit}
-        for m in np.argsort(scores)[::-1][1:cfg.epipolar_candidates]:
+        # the runners-up by evidence, the chosen k aside (argsort may put another of a tie
+        # first)
+        runners = [int(m) for m in np.argsort(scores)[::-1] if m != k]
+        for m in runners[:cfg.epipolar_candidates - 1]:
             r = results[m]
             if r is not None and scores[m] >= 0.5 * max(scores):
                 alt = _refine_pair(i, j, int(round(curve.candidates[m].offset)), r, fine,
                                    lanes, noise, fps_ref, cfg, sr, rng)
                 if alt is not None:
-                    fits[int(m)] = alt
+                    fits[m] = alt
         choice = _epipolar_choice(i, j, fits, joints, cfg, rng) if len(fits) > 1 else None
         if choice is not None and choice[1] <= cfg.epipolar_decisive:
             # the pair keeps its ambiguity (and its flag): the check only compares the
