@@ -90,6 +90,9 @@ def truncate(tracks: list[Tracks], truth: Calibration, n_frames: int) -> list[Tr
     return out
 
 
+#: The height prior (m) every refinement here gets: the simulator's mean, not the scene's.
+HEIGHT = 1.70
+
 START_SCALE = 1.0  # --start-scale: fraction of the stage II-IV error sizes to start from
 
 
@@ -104,7 +107,7 @@ def run(preset: str, seed: int, cfg: RefineConfig, n_frames: int | None = None,
     init = perturb(scene.truth, np.random.default_rng(100 + seed), rot_deg=3.0 * k,
                    pos_m=0.3 * k, focal_rel=0.05 * k, offset=0.5 * k)
     t0 = time.perf_counter()
-    res = refine(tracks, init, cfg, height=1.70, rng=seed)
+    res = refine(tracks, init, cfg, height=HEIGHT, rng=seed)
     dt = time.perf_counter() - t0
     return scene, init, res, dt
 
@@ -120,7 +123,7 @@ def table_accuracy(presets: list[str], seeds: list[int]) -> None:
         for seed in seeds:
             scene, init, res, dt = run(preset, seed, RefineConfig())
             e0 = errors(init, scene.truth)
-            e = errors(res.calibration, scene.truth, float(scene.heights.mean()) / 1.70)
+            e = errors(res.calibration, scene.truth, float(scene.heights.mean()) / HEIGHT)
             verdicts = "".join(q.verdict[0] for q in res.quality.values())
             abs_rot = [rotation_angle_deg(c.R @ g.R.T) for c, g in
                        zip(res.calibration, scene.truth, strict=True)]
@@ -235,7 +238,7 @@ def table_known_principal_point(presets: list[str], seeds: list[int]) -> None:
                     for cam in start.cameras]
             init = Calibration(held, reference_camera=start.reference_camera, world=start.world)
             known = refine(scene.tracks, init, RefineConfig(principal_point="never"),
-                           height=1.70, rng=0).calibration
+                           height=HEIGHT, rng=0).calibration
             cells = []
             for est in (res.calibration, known):
                 e = errors(est, scene.truth)
