@@ -5,7 +5,22 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["joint_extent", "nanmedian_last"]
+__all__ = ["joint_extent", "nanmean", "nanmedian_last"]
+
+
+def nanmean(a: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """``np.nanmean(a, axis)``, the same values, without its "mean of empty slice" warning.
+
+    That warning can only be silenced by ``warnings.catch_warnings``, which is not thread-safe:
+    where two threads do it at once, one restores the filters while the other still relies on
+    them (stage III's pairs run in threads). Here an all-NaN slice is 0 / 0 under
+    ``np.errstate``, which is per thread.
+    """
+    missing = np.isnan(a)
+    total = np.where(missing, 0.0, a).sum(axis)
+    count = (~missing).sum(axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return total / count
 
 
 def nanmedian_last(a: NDArray[np.float64]) -> NDArray[np.float64]:

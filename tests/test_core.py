@@ -190,7 +190,7 @@ def test_norm_xy_equals_numpy_norm_bit_for_bit():
 def test_nan_statistics_equal_numpy():
     import warnings
 
-    from cascalib.nanstats import joint_extent, nanmedian_last
+    from cascalib.nanstats import joint_extent, nanmean, nanmedian_last
     kp = np.random.default_rng(4).normal(size=(40, 3, 26, 3)) * 100
     kp[np.random.default_rng(5).random(kp.shape[:3]) < 0.5] = np.nan
     kp[0, 1] = np.nan  # a person with no joint
@@ -198,7 +198,13 @@ def test_nan_statistics_equal_numpy():
         warnings.simplefilter("ignore", RuntimeWarning)
         want_ext = np.nanmax(kp[..., :2], axis=2) - np.nanmin(kp[..., :2], axis=2)
         want_med = np.nanmedian(kp[..., 0], axis=-1)
+        want_mean = np.nanmean(kp[..., :2], axis=-2)
     ext = joint_extent(kp)
     assert ext.shape == (40, 3, 2) and np.isnan(ext[0, 1]).all()
     assert np.array_equal(ext, want_ext, equal_nan=True)
     assert np.array_equal(nanmedian_last(kp[..., 0]), want_med, equal_nan=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "mean of empty slice" for the empty person
+        mean = nanmean(kp[..., :2], axis=-2)
+    assert np.isnan(mean[0, 1]).all()
+    assert np.array_equal(mean, want_mean, equal_nan=True)

@@ -29,7 +29,7 @@ from scipy.optimize import linear_sum_assignment
 
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
-from cascalib.nanstats import joint_extent, nanmedian_last
+from cascalib.nanstats import joint_extent, nanmean, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
@@ -240,9 +240,9 @@ def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: floa
     """
     with _quiet():
         ank = camera.backproject_to_plane(views[..., _ANKLES, :2], z=ankle_height)
-        g_ank = np.nanmean(ank[..., :2], axis=-2)
+        g_ank = nanmean(ank[..., :2], axis=-2)
         hip_uv = np.where(np.isfinite(views[..., _HIP, :2]), views[..., _HIP, :2],
-                          np.nanmean(views[..., _LR_HIPS, :2], axis=-2))
+                          nanmean(views[..., _LR_HIPS, :2], axis=-2))
         g_hip = camera.backproject_to_plane(hip_uv, z=HIP_FRACTION * height)[..., :2]
     return np.where(np.isfinite(g_ank), g_ank, g_hip)
 
