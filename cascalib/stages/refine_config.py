@@ -237,12 +237,17 @@ class RefineConfig(BaseModel):
         "keeps it unless it raises the held-out reprojection error. A principal point 2 % off "
         "the centre tilts a wide-angle camera by about a degree if it is held fixed.")
     principal_point_iterations: int = Field(
-        3, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass and of "
+        2, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass and of "
         "its split-half check. Measured (terrace, 1200 person-frames): the principal points "
         "move by < 0.1 px after the 4th; the 5th to 10th iterations cost 2.5 s -> 11 s and lower "
         "the error by 0.14 %. On 9 simulated 40 s scenes, 3 instead of 4 changed the median "
         "relative rotation by at most 0.06 deg per scene (mean over scenes 0.465 -> 0.466) and "
-        "saves 0.7 s on 4 cameras x 3000 frames x 5 persons.")
+        "saves 0.7 s on 4 cameras x 3000 frames x 5 persons. Since the update that follows "
+        "(principal_point_updates) starts from the pass, 2 instead of 3 on 24 simulated 40 s "
+        "whole-cascade scenes (terrace, lab ring, crowd, periodic; seeds 0-5): median / mean / "
+        "worst relative rotation 0.207 / 0.292 / 1.046 -> 0.209 / 0.293 / 1.046 deg (at most "
+        "0.02 deg per scene), scenes meeting 0.3 / 1 deg 17 -> 18; one iteration of the "
+        "2400-person-frame pass (1.2-1.5 s) less on 4 cameras x 3000 frames x 5 persons.")
     principal_point_updates: int = Field(
         1, ge=0, description="The principal-point pass is solved again this many times, each "
         "with the bone-length targets triangulated anew with the previous solve's cameras (the "
@@ -256,7 +261,9 @@ class RefineConfig(BaseModel):
         2, ge=1, description="Levenberg-Marquardt iterations of each principal-point update (it "
         "starts from the pass). Measured on the 24 scenes above: 2 instead of 3 gives median / "
         "mean / max 0.22 / 0.32 / 1.52 deg against 0.225 / 0.319 / 1.50, one iteration (about "
-        "1 s on 4 cameras x 3000 frames x 5 persons) less.")
+        "1 s on 4 cameras x 3000 frames x 5 persons) less. 1 instead of 2 (with a 2-iteration "
+        "pass): 0.209 / 0.293 / 1.046 -> 0.238 / 0.302 / 1.090, 18 -> 16 scenes meeting the "
+        "targets; not taken.")
     principal_point_sigma: float = Field(
         0.02, gt=0, description="Prior sd of the principal point around the image centre, as a "
         "fraction of the image width.")
