@@ -141,7 +141,7 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
     d = np.full((n_f - 1, n_p, n_p), np.nan)
     xy = np.ascontiguousarray(keypoints[..., :2])  # gathers of whole rows: twice as fast
-    with np.errstate(invalid="ignore"), _quiet():
+    with np.errstate(invalid="ignore"):  # 0 / 0 for pairs with no joint in common: NaN
         step = norm_xy(xy[k, p] - xy[k + 1, q])  # (pairs, J)
         seen = np.isfinite(step)
         d[k, p, q] = np.where(seen, step, 0.0).sum(-1) / seen.sum(-1)  # nanmean, no copies
@@ -163,19 +163,6 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
         has = same.any(-1)
         links[:-1][has] = same.argmax(-1)[has]
     return links
-
-
-class _quiet:
-    """Silence numpy's "mean of empty slice" warnings inside a block (all-NaN rows are expected)."""
-
-    def __enter__(self) -> None:
-        import warnings
-        self._cm = warnings.catch_warnings()
-        self._cm.__enter__()
-        warnings.simplefilter("ignore", RuntimeWarning)
-
-    def __exit__(self, *exc: object) -> None:
-        self._cm.__exit__(*exc)
 
 
 def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
@@ -238,12 +225,11 @@ def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: floa
     ndarray, shape (T, P, 2)
         NaN where neither ankles nor hips are visible or the ray misses the plane.
     """
-    with _quiet():
-        ank = camera.backproject_to_plane(views[..., _ANKLES, :2], z=ankle_height)
-        g_ank = nanmean(ank[..., :2], axis=-2)
-        hip_uv = np.where(np.isfinite(views[..., _HIP, :2]), views[..., _HIP, :2],
-                          nanmean(views[..., _LR_HIPS, :2], axis=-2))
-        g_hip = camera.backproject_to_plane(hip_uv, z=HIP_FRACTION * height)[..., :2]
+    ank = camera.backproject_to_plane(views[..., _ANKLES, :2], z=ankle_height)
+    g_ank = nanmean(ank[..., :2], axis=-2)
+    hip_uv = np.where(np.isfinite(views[..., _HIP, :2]), views[..., _HIP, :2],
+                      nanmean(views[..., _LR_HIPS, :2], axis=-2))
+    g_hip = camera.backproject_to_plane(hip_uv, z=HIP_FRACTION * height)[..., :2]
     return np.where(np.isfinite(g_ank), g_ank, g_hip)
 
 
@@ -476,17 +462,17 @@ def check_consistency(obs: NDArray[np.float64], cameras: list[Camera], tolerance
     conf = sub[..., 2].transpose(1, 0, 2).reshape(n_cams, -1)
     _, err = triangulate(cameras, uv, conf, huber_px=huber_px, n_iter=2)
     err = err.reshape(n_cams, n_g, n_j).transpose(1, 0, 2)
-    with _quiet():
-        med = nanmedian_last(err)  # (G, C)
-        ext = joint_extent(obs)
+    med = nanmedian_last(err)  # (G, C)
+    ext = joint_extent(obs)
     size = np.maximum(norm_xy(ext), 10.0)
     bad = np.isfinite(obs[..., 0]).any(-1) & ~(med / size < tolerance)
     # only judge groups that keep two views: with a 2-view group both views get the same error
     out = obs.copy()
     out[bad] = np.nan
     rel = np.where(bad, np.nan, med / size)
-    with _quiet():
-        residual = np.nanmax(rel, axis=1)
+    # np.nanmax's values without its all-NaN warning, which only warnings.catch_warnings (not
+    # thread-safe, and stage III's pairs run in threads) could silence
+    residual = np.fmax.reduce(rel, axis=1)
     return out, residual
 
 

@@ -1,4 +1,6 @@
-"""The batched assignments of the cross-view association equal one Hungarian solve per problem."""
+"""The batched assignments of the cross-view association equal one Hungarian solve per problem,
+and its steps stay silent on missing data (they run in stage III's threads, where a
+``warnings.catch_warnings`` block is not safe)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,13 @@ import warnings
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from cascalib.stages.association import _cluster_all, _row_minima_assignment, frame_links
+from cascalib.camera import Camera, look_at
+from cascalib.stages.association import (
+    _cluster_all,
+    _row_minima_assignment,
+    check_consistency,
+    frame_links,
+)
 
 
 def _clusters_one_time(grounds: list[np.ndarray], gate: float) -> list[list[int]]:
@@ -93,7 +101,9 @@ def test_frame_links_equal_per_frame_hungarian():
         kp[rng.random((n_f, n_p, 5)) < 0.2] = np.nan  # single joints missing too
         if trial % 3 == 0 and n_p > 1:
             kp[:, -1] = kp[:, 0]
-        links = frame_links(kp, gate=0.5)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # rows with no joints in common are expected
+            links = frame_links(kp, gate=0.5)
         for k in range(n_f - 1):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
@@ -108,3 +118,27 @@ def test_frame_links_equal_per_frame_hungarian():
                 good = c[r, q] < 0.5
                 want[r[good]] = q[good]
             assert np.array_equal(links[k], want), (trial, k)
+
+
+def test_check_consistency_drops_the_wrong_view_silently():
+    rng = np.random.default_rng(3)
+    cams = []
+    for c, a in enumerate(np.linspace(0, 2 * np.pi, 4, endpoint=False)):
+        R, t = look_at([6 * np.cos(a), 6 * np.sin(a), 2.5], [0.0, 0.0, 0.9])
+        cams.append(Camera.from_params(f"c{c}", (1280, 720), (900.0, 900.0), R, t))
+    n_g = 40
+    body = rng.uniform([-1, -1, 0], [1, 1, 1.8], (n_g, 1, 3)) + rng.normal(0, 0.2, (n_g, 26, 3))
+    obs = np.ones((n_g, 4, 26, 3))
+    for c, cam in enumerate(cams):
+        obs[:, c, :, :2] = cam.project(body.reshape(-1, 3)).reshape(n_g, 26, 2)
+    obs[..., :2] += rng.normal(0, 1.0, obs[..., :2].shape)
+    obs[0] = np.nan  # a group nobody sees: no residual
+    obs[1, 2, :, :2] += 150.0  # a wrong person in camera 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out, residual = check_consistency(obs, cams, tolerance=0.3)
+    assert np.isnan(residual[0]) and np.isfinite(residual[1:]).all()
+    assert np.isnan(out[1, 2]).all() and np.isfinite(out[1, [0, 1, 3], :, :2]).all()
+    kept = np.isfinite(out[2:, :, :, 0]).any(-1)
+    assert kept.all()  # every right view stays
+    assert (residual[1:] < 0.3).all()
