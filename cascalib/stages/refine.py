@@ -494,6 +494,38 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     return cameras
 
 
+def _round_association(rounds: SessionData, cameras: list[Camera], cfg: RefineConfig,
+                       height: float, reference: int, *, refined: bool) -> Association:
+    """The persons of the rounds' reference times associated across the cameras: with the
+    first round's wide gates and ground warps, or ``refined`` (cameras out of a solve)."""
+    return associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
+                     ankle_height=cfg.ankle_height,
+                     gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
+                     consistency=cfg.consistency_refined if refined else cfg.consistency,
+                     align_ground=0 if refined else cfg.align_ground, reference=reference)
+
+
+def _reassociate(rounds: SessionData, cameras: list[Camera], cfg: RefineConfig, height: float,
+                 reference: int, sizes: list[tuple[int, int]], joints: NDArray[np.int64],
+                 budget: int, fitted_times: NDArray[np.float64]
+                 ) -> tuple[Association, NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """The rounds' association and person-frame choices made again with the principal-point
+    pass's ``cameras`` (see ``RefineConfig.principal_point_reassociate``).
+
+    Returns the association (with walking velocities), the rounds-size selection, the pass-size
+    selection, and the groups the held-out checks must not use: those chosen here and every
+    group at a time of ``fitted_times`` (the person-frames earlier solves saw, which the new
+    association numbers differently).
+    """
+    assoc = _round_association(rounds, cameras, cfg, height, reference, refined=True)
+    assoc = replace(assoc, velocity=ground_velocity(assoc))
+    sel = select_groups(assoc, sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
+                        floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+    chosen = _pass_groups(assoc, sel, sizes, joints, cfg, budget)
+    seen = np.flatnonzero(np.isin(assoc.times, fitted_times))
+    return assoc, sel, chosen, np.union1d(np.union1d(sel, chosen), seen)
+
+
 def camera_change(before: list[Camera], after: list[Camera]) -> tuple[float, float]:
     """Largest rotation (deg, geodesic) and relative focal change of any camera between two
     versions of a rig in one world frame."""
@@ -576,12 +608,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     r = 0
     while True:
         refined = r > 0
-        assoc = associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
-                          ankle_height=cfg.ankle_height,
-                          gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
-                          consistency=cfg.consistency_refined if refined else cfg.consistency,
-                          align_ground=0 if refined else cfg.align_ground,
-                          reference=data.reference)
+        assoc = _round_association(rounds, cameras, cfg, height, data.reference,
+                                   refined=refined)
         if assoc.n_groups < 5:
             raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
                                    " at the same time: check the time offsets and overlap")
@@ -629,8 +657,16 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             if model == "s2":  # from the same start as the pass
                 pp_se = principal_point_spread(assoc, chosen, cameras, cfg, pass_kw,
                                                max_groups=cfg.spread_groups)
-                assoc, pass_kw, res = _settle_principal_points(assoc, chosen, res, cfg, pass_kw,
-                                                               joints, height)
+                picks = (assoc, sel, chosen, fitted)
+                if (cfg.principal_point_reassociate and cfg.use_bones
+                        and cfg.principal_point_updates):
+                    picks = _reassociate(rounds, res[0], cfg, height, data.reference, data.sizes,
+                                         joints, budget, assoc.times[fitted])
+                settled = _settle_principal_points(picks[0], picks[2], res, cfg, pass_kw,
+                                                   joints, height)
+                if settled[2] is not res:  # solved (on the new association, if any)
+                    _, sel, chosen, fitted = picks
+                    assoc, pass_kw, res = settled
             cameras, _, info, graph, values, prob = res
             solves.append(info)
             n_passes += 1

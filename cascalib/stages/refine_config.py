@@ -264,6 +264,22 @@ class RefineConfig(BaseModel):
         "1 s on 4 cameras x 3000 frames x 5 persons) less. 1 instead of 2 (with a 2-iteration "
         "pass): 0.209 / 0.293 / 1.046 -> 0.238 / 0.302 / 1.090, 18 -> 16 scenes meeting the "
         "targets; not taken.")
+    principal_point_reassociate: bool = Field(
+        True, description="Before the principal-point update, associate the persons again "
+        "with the pass's cameras and choose the update's (and the distortion pass's) "
+        "person-frames from that association. The rounds' association came from cameras "
+        "whose principal points sat at the image centre, degrees off in rotation where the "
+        "principal point is off: its refined gates keep wrong views and drop right ones, "
+        "most of all in crowds. Measured on 24 simulated 40 s whole-cascade scenes (terrace, "
+        "lab ring, crowd, periodic; seeds 0-5), off -> on: relative rotation median 0.209 -> "
+        "0.205 deg, mean 0.293 -> 0.263, worst scene max 1.56 -> 1.14 (crowd seed 0), "
+        "crowds' mean median 0.488 -> 0.404 (seed 1: 0.81 -> 0.44), focal worst 1.68 -> "
+        "1.25 %, offsets worst 0.125 -> 0.103 frame (mean 0.045 -> 0.047, as with other "
+        "random subsets of the clock search: 0.044 in a run with the same geometry); scenes "
+        "meeting 0.3 / 1 deg 18 -> 17 (crowd seed 4: 0.292 -> 0.306 deg). Cost: one "
+        "association and selection of the rounds' frames, +0.6 s on average in two paired "
+        "runs of Stage V on 4 cameras x 3000 frames x 5 persons (18.2 and 20.3 s off, 19.7 "
+        "and 20.1 s on; rotation 0.427 / 0.752 -> 0.425 / 0.725 deg).")
     principal_point_sigma: float = Field(
         0.02, gt=0, description="Prior sd of the principal point around the image centre, as a "
         "fraction of the image width.")

@@ -407,3 +407,26 @@ def test_rounds_continue_while_the_cameras_still_move(tolerance, n_rounds, solve
                  progress=fractions.append)
     assert len(res.solves) == solves
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
+
+
+def test_reassociation_after_the_principal_point_pass_keeps_its_held_out_frames_unseen():
+    from cascalib.stages.refine import _reassociate, _round_association
+
+    scene = make_scene(n_frames=40, n_persons=3, noise_px=0.5, offsets=(0, 0, 0, 0), seed=5)
+    data = _prepare(scene.tracks, scene.truth)
+    cams = list(scene.truth.cameras)
+    cfg = RefineConfig(max_groups=20, intrinsics_groups=60)
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    seen_times = data.times[:10]  # the person-frames earlier solves used (another numbering)
+    assoc, sel, chosen, fitted = _reassociate(data, cams, cfg, 1.7, data.reference, data.sizes,
+                                              joints, cfg.intrinsics_groups, seen_times)
+    again = _round_association(data, cams, cfg, 1.7, data.reference, refined=True)
+    np.testing.assert_array_equal(assoc.times, again.times)  # the refined rounds' association
+    assert assoc.velocity is not None and len(assoc.velocity) == assoc.n_groups
+    assert sel.size == cfg.max_groups and 20 < chosen.size <= cfg.intrinsics_groups
+    assert chosen.max() < assoc.n_groups
+    # held out must stay unseen: what is chosen now, and everything at the earlier times
+    at_seen = np.flatnonzero(np.isin(assoc.times, seen_times))
+    assert at_seen.size > 0
+    assert set(sel) | set(chosen) | set(at_seen) == set(fitted)
+    assert fitted.size < assoc.n_groups  # something is left to hold out
