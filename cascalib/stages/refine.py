@@ -310,6 +310,14 @@ def _pass_config(cfg: RefineConfig, model: str) -> RefineConfig:
                                                         cfg.principal_point_iterations)})
 
 
+def _select(assoc: Association, sizes: list[tuple[int, int]], n: int,
+            joints: NDArray[np.int64], cfg: RefineConfig) -> NDArray[np.int64]:
+    """``n`` well-spread person-frames of ``assoc`` (:func:`select_groups` with the frame
+    selection settings of ``cfg``)."""
+    return select_groups(assoc, sizes, n, joints, n_time_bins=cfg.n_time_bins,
+                         floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+
+
 def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[int, int]],
                 joints: NDArray[np.int64], cfg: RefineConfig, n: int) -> NDArray[np.int64]:
     """Person-frames of an intrinsics pass of budget ``n``: the last round's selection ``sel``
@@ -318,8 +326,7 @@ def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[i
     n = min(n, max(cfg.max_groups, 4 * usable_groups(assoc, joints).size // 5))
     if n == cfg.max_groups:
         return sel
-    return select_groups(assoc, sizes, n, joints, n_time_bins=cfg.n_time_bins,
-                         floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+    return _select(assoc, sizes, n, joints, cfg)
 
 
 def _refined_problem(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
@@ -519,8 +526,7 @@ def _reassociate(rounds: SessionData, cameras: list[Camera], cfg: RefineConfig, 
     """
     assoc = _round_association(rounds, cameras, cfg, height, reference, refined=True)
     assoc = replace(assoc, velocity=ground_velocity(assoc))
-    sel = select_groups(assoc, sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
-                        floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+    sel = _select(assoc, sizes, cfg.max_groups, joints, cfg)
     chosen = _pass_groups(assoc, sel, sizes, joints, cfg, budget)
     seen = np.flatnonzero(np.isin(assoc.times, fitted_times))
     return assoc, sel, chosen, np.union1d(np.union1d(sel, chosen), seen)
@@ -617,8 +623,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         if cfg.use_bones and refined:
             # track numbers are this association's own: the targets must come from it too
             assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
-        sel = select_groups(assoc, data.sizes, cfg.max_groups, joints, n_time_bins=cfg.n_time_bins,
-                            floor_cell_m=cfg.floor_cell_m, image_grid=cfg.image_grid)
+        sel = _select(assoc, data.sizes, cfg.max_groups, joints, cfg)
         kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
                   targets=targets, fixed=fixed)
         prob = _make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)
