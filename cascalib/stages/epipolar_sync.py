@@ -251,11 +251,11 @@ def _first_association(views: list[NDArray[np.float64]], cams: list[Camera],
                        consistency: float | None = None, reference: int = 0) -> Association:
     """Persons matched across cameras as in Stage V's first round (gates sized for the errors
     stage IV leaves), without track links; ``consistency`` overrides its triangulation gate."""
-    first = RefineConfig()
-    return associate(views, cams, times, height=height, ankle_height=first.ankle_height,
-                     gate_m=first.gate_m,
-                     consistency=first.consistency if consistency is None else consistency,
-                     align_ground=first.align_ground, reference=reference, link=False)
+    gates = RefineConfig().association_gates(refined=False)
+    if consistency is not None:
+        gates["consistency"] = consistency
+    return associate(views, cams, times, height=height, reference=reference, link=False,
+                     **gates)
 
 
 def _shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,

@@ -506,10 +506,7 @@ def _round_association(rounds: SessionData, cameras: list[Camera], cfg: RefineCo
     """The persons of the rounds' reference times associated across the cameras: with the
     first round's wide gates and ground warps, or ``refined`` (cameras out of a solve)."""
     return associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
-                     ankle_height=cfg.ankle_height,
-                     gate_m=cfg.gate_refined_m if refined else cfg.gate_m,
-                     consistency=cfg.consistency_refined if refined else cfg.consistency,
-                     align_ground=0 if refined else cfg.align_ground, reference=reference)
+                     reference=reference, **cfg.association_gates(refined=refined))
 
 
 def _reassociate(rounds: SessionData, cameras: list[Camera], cfg: RefineConfig, height: float,

@@ -307,6 +307,15 @@ class RefineConfig(BaseModel):
         "factor): marginals reflect noise, not model bias (detector bias, body-model error); "
         "calibrated against the measured errors of bench/bench_refine.py.")
 
+    def association_gates(self, *, refined: bool) -> dict[str, float | int]:
+        """Keywords of :func:`~cascalib.stages.association.associate` for the rounds: the
+        first round's wide gates and ground warps (cameras as stages II-IV left them), or the
+        ``refined`` ones (cameras out of a solve)."""
+        return {"ankle_height": self.ankle_height,
+                "gate_m": self.gate_refined_m if refined else self.gate_m,
+                "consistency": self.consistency_refined if refined else self.consistency,
+                "align_ground": 0 if refined else self.align_ground}
+
     def head_height(self, joint: str, height: float) -> float:
         """Height (m) above the ground of head keypoint ``joint`` of a walking person."""
         return (HEAD_HEIGHT_FRACTIONS[joint] + self.head_top_fraction - 1.0) * height
