@@ -210,39 +210,58 @@ def _dense(track: GridTrack, n_fft: int, min_gap: int) -> tuple[NDArray[np.compl
             sfft.fft(m * np.abs(z) ** 2, axis=1))
 
 
-def _chunk_fit(part: NDArray[np.float64], G: tuple[NDArray[np.complex128], ...], n_fft: int,
-               lags: NDArray[np.int64], min_samples: int, scale_range: float, sigma: float
-               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Procrustes fit of one chunk against every B tracklet at every lag.
+def _chunk_fit(parts: list[NDArray[np.float64]], G: tuple[NDArray[np.complex128], ...],
+               n_fft: int, lags: NDArray[np.int64], min_samples: int, scale_range: float,
+               sigma: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Procrustes fit of each chunk against every B tracklet at every lag.
 
     Returns the vote ``n * exp(-rms^2 / 2 sigma^2)`` of the best-fitting B tracklet at each lag
-    and that fit's rotation angle (A -> B), each shape (n_lags,).
+    and that fit's rotation angle (A -> B), each shape (n_chunks, n_lags). The chunks go
+    through the FFTs together: one at a time, numpy's per-call overhead on (lanes, n_fft)
+    arrays was most of the search's time, and held the GIL so that pairs in threads ran no
+    faster than one after another.
     """
-    ok = np.isfinite(part[:, 0])
-    m = ok.astype(np.float64)
-    za = np.where(ok, part[:, 0] + 1j * part[:, 1], 0)
-    F1 = np.conj(sfft.fft(m, n_fft))
-    F2 = np.conj(sfft.fft(za, n_fft))
-    F3 = np.conj(sfft.fft(m * np.abs(za) ** 2, n_fft))
+    m = np.zeros((len(parts), n_fft))
+    za = np.zeros((len(parts), n_fft), np.complex128)
+    for k, part in enumerate(parts):
+        ok = np.isfinite(part[:, 0])
+        m[k, : len(part)] = ok
+        za[k, : len(part)] = np.where(ok, part[:, 0] + 1j * part[:, 1], 0)
+    F1 = np.conj(sfft.fft(m, axis=1))[:, None]
+    F2 = np.conj(sfft.fft(za, axis=1))[:, None]
+    F3 = np.conj(sfft.fft(m * np.abs(za) ** 2, axis=1))[:, None]
     G1, G2, G3 = G
-    X1 = sfft.ifft(F1 * (G1 + 1j * G3), axis=1)[:, lags]
-    n, qb = np.round(X1.real), X1.imag
-    sb = sfft.ifft(F1 * G2, axis=1)[:, lags]
-    sa = np.conj(sfft.ifft(F2 * G1, axis=1)[:, lags])
-    c = sfft.ifft(F2 * G2, axis=1)[:, lags]
-    qa = sfft.ifft(F3 * G1, axis=1)[:, lags].real
+
+    def corr(F: NDArray[np.complex128], Gk: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        return sfft.ifft(F * Gk, axis=-1)  # (chunks, lanes, n_fft)
+
+    X1 = corr(F1, G1 + 1j * G3)
+    n = np.round(X1.real[..., lags])
     good = n >= min_samples
-    nn = np.where(good, n, 1.0)
+    # a chunk overlaps a lane at about a third of the lags: the fit only there, on the
+    # flattened (chunks, lanes, n_fft) positions of those correlations
+    b_l, j = np.nonzero(good.reshape(-1, lags.size))
+    at = b_l * n_fft + lags[j]
+
+    def pick(v: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        return v.reshape(-1)[at]
+
+    nn, qb = n[good], pick(X1).imag
+    sb, c = pick(corr(F1, G2)), pick(corr(F2, G2))
+    sa = np.conj(pick(corr(F2, G1)))
+    qa = pick(corr(F3, G1)).real
     va = np.maximum(qa - (sa.real**2 + sa.imag**2) / nn, 1e-12)
     vb = np.maximum(qb - (sb.real**2 + sb.imag**2) / nn, 0.0)
     x = c - sb * np.conj(sa) / nn
     ax = np.abs(x)
     s = np.clip(ax / va, 1.0 / scale_range, scale_range)  # b ~ s R a, stage-I scale
     res = np.maximum(vb - 2 * s * ax + s * s * va, 0.0) / nn
-    support = np.where(good, n * np.exp(-0.5 * res / sigma**2), 0.0)
-    best = np.argmax(support, axis=0)
-    cols = np.arange(lags.size)
-    return support[best, cols], np.angle(x[best, cols])
+    support, angle = np.zeros(good.shape), np.zeros(good.shape)
+    support[good] = nn * np.exp(-0.5 * res / sigma**2)
+    angle[good] = np.angle(x)
+    best = np.argmax(support, axis=1)[:, None]
+    return (np.take_along_axis(support, best, 1)[:, 0],
+            np.take_along_axis(angle, best, 1)[:, 0])
 
 
 def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = None,
@@ -289,12 +308,16 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
         logger.warning("sync %s-%s: no moving person in one of the views", a.camera, b.camera)
         return SyncCurve(offsets, np.zeros(n_off), [], 1.0)
     G = _dense(b, n_fft, chunk + 1)
-    for p, part in chunks:
-        sup, th = _chunk_fit(part, G, n_fft, lag_idx, min_overlap, scale_range, sigma)
-        off_idx = p - lags + b.length - 1
-        keep = (sup > 1e-3) & (off_idx >= 0) & (off_idx < n_off)
-        bins = np.floor((-th[keep] % (2 * np.pi)) / (2 * np.pi) * angle_bins).astype(int)
-        np.add.at(hist, (off_idx[keep], bins % angle_bins), sup[keep])
+    # blocks of chunks: the (chunks, lanes, lags) arrays stay about 10 MB
+    block = max(1, int(2**19 // (G[0].shape[0] * n_fft)))
+    for k0 in range(0, len(chunks), block):
+        sup, th = _chunk_fit([part for _, part in chunks[k0:k0 + block]], G, n_fft, lag_idx,
+                             min_overlap, scale_range, sigma)
+        for (p, _), sup_p, th_p in zip(chunks[k0:k0 + block], sup, th, strict=True):
+            off_idx = p - lags + b.length - 1
+            keep = (sup_p > 1e-3) & (off_idx >= 0) & (off_idx < n_off)
+            bins = np.floor((-th_p[keep] % (2 * np.pi)) / (2 * np.pi) * angle_bins).astype(int)
+            np.add.at(hist, (off_idx[keep], bins % angle_bins), sup_p[keep])
     hist = hist[:n_off]
     smooth = 0.5 * hist + 0.25 * (np.roll(hist, 1, axis=1) + np.roll(hist, -1, axis=1))
     offsets = (np.arange(n_off) - (b.length - 1)) * step
