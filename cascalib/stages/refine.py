@@ -299,15 +299,17 @@ def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Cam
     return float(np.median(e)) if e.size else float("inf")
 
 
+def _iterations(cfg: RefineConfig, n: int) -> RefineConfig:
+    """``cfg`` with Levenberg-Marquardt stopping after ``n`` iterations (``max_iterations`` at
+    most): the intrinsics passes start from refined cameras, and their later iterations, mostly
+    rejected LM trials, only reweight outliers."""
+    return cfg.model_copy(update={"max_iterations": min(cfg.max_iterations, n)})
+
+
 def _pass_config(cfg: RefineConfig, model: str) -> RefineConfig:
     """The settings of an intrinsics pass: the principal-point pass stops after
-    ``cfg.principal_point_iterations`` (it starts from refined cameras; its principal points
-    settle in 3 iterations, and the later ones, mostly rejected LM trials, only reweight
-    outliers)."""
-    if model != "s2":
-        return cfg
-    return cfg.model_copy(update={"max_iterations": min(cfg.max_iterations,
-                                                        cfg.principal_point_iterations)})
+    ``cfg.principal_point_iterations``."""
+    return _iterations(cfg, cfg.principal_point_iterations) if model == "s2" else cfg
 
 
 def _select(assoc: Association, sizes: list[tuple[int, int]], n: int,
@@ -395,8 +397,7 @@ def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tu
     association, the passes' keywords (targets) and the solve's outcome (``res`` unchanged if
     an update fails).
     """
-    iterations = min(cfg.max_iterations, cfg.principal_point_update_iterations)
-    solve_cfg = cfg.model_copy(update={"max_iterations": iterations})
+    solve_cfg = _iterations(cfg, cfg.principal_point_update_iterations)
     for _ in range(cfg.principal_point_updates if cfg.use_bones else 0):
         cut, targets = _track_targets(assoc, res[0], cfg, joints, height)
         cut = replace(cut, velocity=ground_velocity(cut))
@@ -434,7 +435,7 @@ def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: 
     for part in (order[t <= np.median(t)], order[t > np.median(t)]):
         prob = _refined_problem(assoc, np.sort(part), cameras, cfg, kw, "s2")
         try:
-            cams = solve(prob, _pass_config(cfg, "s2"))[0]
+            cams = solve(prob, _iterations(cfg, cfg.spread_iterations))[0]
         except RefinementFailed as exc:
             log.info("split-half principal point unavailable: %s", exc)
             return None

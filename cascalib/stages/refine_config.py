@@ -57,6 +57,10 @@ class RefineConfig(BaseModel):
     spread_groups: int = Field(
         240, ge=10, description="Most person-frames in each half of the split-half check of the "
         "principal point (the uncertainty the quality report gives it).")
+    spread_iterations: int = Field(
+        2, ge=1, description="Levenberg-Marquardt iterations of each half of that split-half "
+        "check. Both halves start from the rounds' cameras: stopped too early, they stay "
+        "nearer that common start and their distance understates the principal point's error.")
     n_rounds: int | None = Field(
         None, ge=1, description="Solve / re-associate rounds (outlier rejection by "
         "re-association; each also updates the clocks and bone lengths). None: 2 when the "
@@ -237,17 +241,18 @@ class RefineConfig(BaseModel):
         "keeps it unless it raises the held-out reprojection error. A principal point 2 % off "
         "the centre tilts a wide-angle camera by about a degree if it is held fixed.")
     principal_point_iterations: int = Field(
-        2, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass and of "
-        "its split-half check. Measured (terrace, 1200 person-frames): the principal points "
-        "move by < 0.1 px after the 4th; the 5th to 10th iterations cost 2.5 s -> 11 s and lower "
-        "the error by 0.14 %. On 9 simulated 40 s scenes, 3 instead of 4 changed the median "
-        "relative rotation by at most 0.06 deg per scene (mean over scenes 0.465 -> 0.466) and "
-        "saves 0.7 s on 4 cameras x 3000 frames x 5 persons. Since the update that follows "
-        "(principal_point_updates) starts from the pass, 2 instead of 3 on 24 simulated 40 s "
-        "whole-cascade scenes (terrace, lab ring, crowd, periodic; seeds 0-5): median / mean / "
-        "worst relative rotation 0.207 / 0.292 / 1.046 -> 0.209 / 0.293 / 1.046 deg (at most "
-        "0.02 deg per scene), scenes meeting 0.3 / 1 deg 17 -> 18; one iteration of the "
-        "2400-person-frame pass (1.2-1.5 s) less on 4 cameras x 3000 frames x 5 persons.")
+        1, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass. "
+        "Measured (terrace, 1200 person-frames): the principal points move by < 0.1 px after "
+        "the 4th; the 5th to 10th iterations cost 2.5 s -> 11 s and lower the error by 0.14 %. "
+        "The update that follows (principal_point_updates) starts from the pass, on persons "
+        "associated anew with its cameras (principal_point_reassociate): measured on 24 "
+        "simulated 40 s whole-cascade scenes (terrace, lab ring, crowd, periodic; seeds 0-5), "
+        "median / mean / worst relative rotation with 3 -> 2 iterations 0.207 / 0.292 / 1.046 "
+        "-> 0.209 / 0.293 / 1.046 deg (before the re-association), with 2 -> 1 0.205 / 0.263 / "
+        "1.031 -> 0.210 / 0.260 / 0.695 deg (worst max 1.14 -> 1.09, focal worst 1.25 -> 1.11 "
+        "%, scenes meeting 0.3 / 1 deg 17 -> 18; single scenes moved by up to 0.34 deg either "
+        "way); each iteration of the 2400-person-frame pass costs 1.2-1.5 s on 4 cameras x "
+        "3000 frames x 5 persons.")
     principal_point_updates: int = Field(
         1, ge=0, description="The principal-point pass is solved again this many times, each "
         "with the bone-length targets triangulated anew with the previous solve's cameras (the "
