@@ -18,7 +18,7 @@ from cascalib.stages.ground import (
 )
 from cascalib.stages.icp import Similarity2D, assign_frames, dense_lanes, icp_pair, refine_sync
 from cascalib.stages.rotation import rotation_search
-from cascalib.stages.sync import resample_tracks, search_offsets, solve_time
+from cascalib.stages.sync import _chunk_fit, resample_tracks, search_offsets, solve_time
 
 
 def _walk(rng: np.random.Generator, n: int, speed: float = 0.05) -> np.ndarray:
@@ -64,6 +64,50 @@ def test_search_offsets_finds_offset_and_angle(offset: int) -> None:
     far = [c for c in curve.candidates if abs(c.offset - offset) > 40]
     assert all(c.score < 0.5 * best.score for c in far)
     assert curve.score.argmax() == np.argmin(np.abs(curve.offsets - best.offset))
+
+
+def test_chunk_fit_equals_direct_procrustes_fit() -> None:
+    """The FFT vote of a block of chunks against lanes with gaps equals, lag by lag, the
+    closed-form similarity fit of the overlapping samples computed directly."""
+    rng = np.random.default_rng(11)
+    n_fft, min_samples, scale_range, sigma = 96, 6, 1.3, 0.4
+    lanes = []
+    for _ in range(3):
+        z = np.full(60, np.nan + 0j)
+        s0 = int(rng.integers(0, 20))
+        z[s0:s0 + 35] = rng.normal(0, 1, 35) + 1j * rng.normal(0, 1, 35)
+        z[s0 + 10:s0 + 13] = np.nan  # a gap inside the tracklet
+        lanes.append(z)
+    mb = np.array([np.isfinite(z) for z in lanes], float)
+    zb = np.nan_to_num(np.array(lanes))
+    G = (np.fft.fft(mb, n_fft), np.fft.fft(zb, n_fft), np.fft.fft(mb * np.abs(zb) ** 2, n_fft))
+    parts = [rng.normal(0, 1, (n, 2)) for n in (12, 9, 12)]
+    parts[0][4] = np.nan  # a missed sample in a chunk
+    lags = np.arange(-11, 60)
+    sup, ang = _chunk_fit(parts, G, n_fft, lags % n_fft, min_samples, scale_range, sigma)
+    assert sup.shape == ang.shape == (3, lags.size)
+    for k, part in enumerate(parts):
+        za = part[:, 0] + 1j * part[:, 1]
+        for j, lag in enumerate(lags):
+            best, best_angle = 0.0, None
+            for z in lanes:
+                i = np.arange(len(za))
+                ok = np.isfinite(za) & (i + lag >= 0) & (i + lag < len(z))
+                ok[ok] &= np.isfinite(z[(i + lag)[ok]])
+                n = int(ok.sum())
+                if n < min_samples:
+                    continue
+                a, b = za[ok] - za[ok].mean(), z[i[ok] + lag] - z[i[ok] + lag].mean()
+                x = np.sum(np.conj(a) * b)
+                va, vb = np.sum(np.abs(a) ** 2), np.sum(np.abs(b) ** 2)
+                s = np.clip(abs(x) / va, 1 / scale_range, scale_range)
+                res = max(vb - 2 * s * abs(x) + s * s * va, 0.0) / n
+                vote = n * np.exp(-0.5 * res / sigma**2)
+                if vote > best:
+                    best, best_angle = vote, np.angle(x)
+            assert sup[k, j] == pytest.approx(best, rel=1e-9, abs=1e-9)
+            if best_angle is not None:
+                assert abs(np.angle(np.exp(1j * (ang[k, j] - best_angle)))) < 1e-9
 
 
 def test_icp_and_refine_recover_subframe_offset_and_rate() -> None:
