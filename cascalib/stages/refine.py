@@ -483,6 +483,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
+    A kept update that moved no offset by ``cfg.time_settle_frames`` ends the updates.
     ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
     """
     data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
@@ -498,7 +499,11 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                  "kept" if new_cost < cost else "rejected")
         if new_cost >= cost:
             break
+        moved = max(abs(a.time_offset - b.time_offset) for a, b in zip(new, cameras,
+                                                                         strict=True))
         cameras, cost, assoc = new, new_cost, new_assoc
+        if moved < cfg.time_settle_frames:
+            break
     return cameras
 
 

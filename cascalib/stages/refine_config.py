@@ -209,6 +209,14 @@ class RefineConfig(BaseModel):
         "of time blocks of the recording, so that a short recording keeps stage III's rate.")
     time_iterations: int = Field(
         2, ge=1, description="Offset updates (each after a re-association) after each round.")
+    time_settle_frames: float = Field(
+        0.02, ge=0, description="A kept clock update that moved no camera's offset by more "
+        "(frames) ends that step's updates: the next one would move them less still, and the "
+        "joint error that decides on it cannot tell such steps apart (4 x 3000 x 5: the "
+        "final step's second update, rejected there, took about 1 s). Measured on 24 "
+        "simulated 40 s whole-cascade scenes: 20 identical, 4 changed by at most 0.011 deg; "
+        "mean over scenes of the worst offset error 0.0479 -> 0.0486 frame, worst 0.103 -> "
+        "0.103. 0 never ends early.")
     time_search_frames: float = Field(
         1.0, gt=0, description="Half-width of the sub-frame offset search (reference frames).")
     time_step_frames: float = Field(
