@@ -217,9 +217,9 @@ def _chunk_fit(parts: list[NDArray[np.float64]], G: tuple[NDArray[np.complex128]
 
     Returns the vote ``n * exp(-rms^2 / 2 sigma^2)`` of the best-fitting B tracklet at each lag
     and that fit's rotation angle (A -> B), each shape (n_chunks, n_lags). The chunks go
-    through the FFTs together: one at a time, numpy's per-call overhead on (lanes, n_fft)
-    arrays was most of the search's time, and held the GIL so that pairs in threads ran no
-    faster than one after another.
+    through the FFTs together: one at a time, the many small numpy calls held the GIL, so that
+    camera pairs in threads ran no faster than one after another (4 x 3000 x 5: 2.15 s for the
+    six searches serially, 2.28 s in two threads; blocked, 1.28 s in two threads).
     """
     m = np.zeros((len(parts), n_fft))
     za = np.zeros((len(parts), n_fft), np.complex128)
@@ -308,7 +308,7 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
         logger.warning("sync %s-%s: no moving person in one of the views", a.camera, b.camera)
         return SyncCurve(offsets, np.zeros(n_off), [], 1.0)
     G = _dense(b, n_fft, chunk + 1)
-    # blocks of chunks: the (chunks, lanes, lags) arrays stay about 10 MB
+    # blocks of chunks: each (chunks, lanes, n_fft) correlation stays about 8 MB
     block = max(1, int(2**19 // (G[0].shape[0] * n_fft)))
     for k0 in range(0, len(chunks), block):
         sup, th = _chunk_fit([part for _, part in chunks[k0:k0 + block]], G, n_fft, lag_idx,
