@@ -188,8 +188,7 @@ def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, hei
         Reprojection errors (px), NaN where unobserved.
     """
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
-                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
-                      consistency=cfg.consistency_refined)
+                      **cfg.association_gates(refined=True))
     assoc = stitch_tracks(assoc, fps=data.fps)
     points, err = triangulate_groups(assoc, cameras, np.arange(26))
     # stitching and linking can swap two people who pass close: cut where the size jumps

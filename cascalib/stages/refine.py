@@ -465,9 +465,10 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     """Median reprojection error of all groups triangulated by all cameras at these clocks, at
     the reference times of ``data`` (see
     :func:`~cascalib.stages.reconstruct.clock_check_times`)."""
-    assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
-                      ankle_height=cfg.ankle_height, gate_m=cfg.gate_refined_m,
-                      consistency=cfg.consistency, link=False)  # no tracks needed
+    # the refined ground gate with the first round's (looser) triangulation check
+    gates = cfg.association_gates(refined=True) | {"consistency": cfg.consistency}
+    assoc = associate(views_at(data, cameras), cameras, data.times, height=height, link=False,
+                      **gates)  # no tracks needed
     step = max(1, assoc.n_groups // 2000)
     _, err = triangulate_groups(assoc.subset(np.arange(0, assoc.n_groups, step)), cameras, joints)
     e = err[np.isfinite(err)]
