@@ -75,6 +75,12 @@ def create_celery(settings: Settings) -> Celery:
         worker = f"celery:{socket.gethostname()}:{os.getpid()}"
         with store.session() as session:
             attempt = st.claim_job(session, job_id=job_id, worker=worker)
+            unknown = attempt is None and st.find_job(session, job_id=job_id, owner=None) is None
+        if unknown:
+            # Deleted since, or another deployment's job: a broker database shared by two
+            # deployments makes their workers take (and drop) each other's messages.
+            log.warning("job %s is not in this worker's database (deleted, or is the broker "
+                        "at CASCALIB_BROKER_URL shared with another deployment?)", job_id)
         if attempt is None:
             return None  # duplicate message, or the job was cancelled meanwhile
         new = supervise(job_id, attempt, store, settings)

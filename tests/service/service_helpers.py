@@ -66,6 +66,26 @@ def redis_reason() -> str | None:
     return None
 
 
+#: Redis databases held by live deployments. Each Celery deployment gets its own, emptied
+#: first: two live deployments on one database (the session's and a test's own, picked at
+#: random before) steal each other's messages, and a worker then answers "no such job" for
+#: the other's jobs (seen once in CI: a re-queued job never ran).
+_redis_dbs_in_use: set[int] = set()
+
+
+def take_redis_db() -> int:
+    """A Redis database no live deployment uses, emptied (leftovers of earlier runs)."""
+    import redis
+
+    free = [db for db in range(1, 16) if db not in _redis_dbs_in_use]
+    if not free:
+        raise RuntimeError("more than 15 live Celery deployments: Redis has 16 databases")
+    db = free[0]
+    redis.Redis.from_url(f"{REDIS_URL}/{db}", socket_connect_timeout=2).flushdb()
+    _redis_dbs_in_use.add(db)
+    return db
+
+
 @dataclass
 class Postgres:
     """A throw-away PostgreSQL database."""
@@ -136,6 +156,7 @@ class Deployment:
     port: int = 0
     server: Proc | None = None
     workers: list[Proc] = field(default_factory=list)
+    redis_db: int | None = None
 
     @property
     def url(self) -> str:
@@ -179,6 +200,9 @@ class Deployment:
         self.workers.clear()
         if self.server is not None:
             self.server.stop()
+        if self.redis_db is not None:
+            _redis_dbs_in_use.discard(self.redis_db)
+            self.redis_db = None
 
     def logs(self) -> str:
         parts = [self.server.tail()] if self.server else []
@@ -211,15 +235,16 @@ def build_deployment(kind: str, tmp: Path, concurrency: int = 1,
             pytest.skip(reason)
         pg = Postgres().create()
         extra = {"CASCALIB_DATABASE_URL": pg.url, **extra}
+    redis_db = None
     if kind == "celery":
         reason = redis_reason()
         if reason:
             pg.drop() if pg else None
             pytest.skip(reason)
-        db = 1 + int(uuid.uuid4().int % 14)
-        extra = {"CASCALIB_BROKER_URL": f"{REDIS_URL}/{db}", **extra}
+        redis_db = take_redis_db()
+        extra = {"CASCALIB_BROKER_URL": f"{REDIS_URL}/{redis_db}", **extra}
     data_dir = tmp / "data"
-    dep = Deployment(kind, make_env(data_dir, **extra), data_dir, tmp)
+    dep = Deployment(kind, make_env(data_dir, **extra), data_dir, tmp, redis_db=redis_db)
     try:
         dep.start_server()
         if kind == "celery":
