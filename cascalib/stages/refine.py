@@ -13,7 +13,8 @@ Cascade of one call to :func:`refine`::
     groups --select (coverage of time, floor, image)--> graph --LM--> cameras
     cameras --refine time offsets, re-associate--> (repeat n_rounds, more while they still move)
     [principal-point pass (upright torsos added), kept if it helps on held-out frames, then
-     solved again with bone targets from its own cameras; lens-distortion pass, likewise kept]
+     solved again with bone targets from its own cameras; if that moved the cameras far, one
+     more round and pass at its principal points; lens-distortion pass, likewise kept]
     cameras --triangulate every frame--> poses3d, quality report
 """
 
@@ -552,6 +553,151 @@ def _round_limits(cfg: RefineConfig) -> tuple[int, int]:
     return least, max(least, cfg.max_rounds)
 
 
+@dataclass
+class _Progress:
+    """Progress fractions of ``total`` roughly equal steps, to ``callback``; steps may be added
+    on the way (more rounds) and the fraction never goes back."""
+
+    callback: Callable[[float], None] | None
+    total: int
+    done: int = 0
+    shown: float = 0.0
+
+    def step(self) -> None:
+        self.done += 1
+        self.shown = max(self.shown, min(self.done / self.total, 1.0))
+        if self.callback is not None:
+            self.callback(self.shown)
+
+
+@dataclass
+class _Run:
+    """What the steps of one :func:`refine` call share; ``solves`` collects their records."""
+
+    data: SessionData
+    rounds: SessionData  # the reference times the rounds associate
+    cfg: RefineConfig
+    height: float
+    joints: NDArray[np.int64]
+    fixed: frozenset[int]
+    anchor_rates: list[float]  # stage III's rates: the clock search's anchors
+    rng: np.random.Generator
+    progress: _Progress
+    solves: list[SolveInfo] = field(default_factory=list)
+
+    def clocks(self, cameras: list[Camera]) -> list[Camera]:
+        """:func:`refine_clocks` of ``cameras`` (or them unchanged with ``refine_time`` off)."""
+        if not self.cfg.refine_time:
+            return cameras
+        return refine_clocks(self.data, cameras, self.cfg, self.joints, self.height, self.rng,
+                             anchor_rates=self.anchor_rates)
+
+
+@dataclass
+class _Fit:
+    """The current cameras and what they were solved on, from step to step of :func:`refine`."""
+
+    cameras: list[Camera]
+    assoc: Association  # the association of the last solve's person-frames
+    sel: NDArray[np.int64]  # its selection at the rounds' size (marginals at that size)
+    fitted: NDArray[np.int64]  # person-frames solves saw: never held out
+    kw: dict  # problem keywords, with the bone targets of ``assoc``'s tracks
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    prob: GraphProblem
+
+
+def _solve_rounds(run: _Run, cameras: list[Camera], *, least: int, most: int,
+                  refined: bool) -> _Fit:
+    """Associate, select, solve and update the clocks, ``least`` to ``most`` rounds: more
+    while the last round still moved the cameras (``RefineConfig.round_tolerance_deg``).
+
+    ``refined``: ``cameras`` come out of a solve (the association's narrow gates, the size noise
+    model fitted from the start). Each round beyond ``least`` adds three progress steps.
+    """
+    cfg, data = run.cfg, run.data
+    targets: dict[int, NDArray] | None = None
+    r = 0
+    while True:
+        refined = refined or r > 0
+        assoc = _round_association(run.rounds, cameras, cfg, run.height, data.reference,
+                                   refined=refined)
+        if assoc.n_groups < 5:
+            raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
+                                   " at the same time: check the time offsets and overlap")
+        run.progress.step()
+        if cfg.use_bones and refined:
+            # track numbers are this association's own: the targets must come from it too
+            assoc, targets = _track_targets(assoc, cameras, cfg, run.joints, run.height)
+        sel = _select(assoc, data.sizes, cfg.max_groups, run.joints, cfg)
+        kw = dict(height=run.height, n_persons=persons_per_time(assoc),
+                  reference=data.reference, targets=targets, fixed=run.fixed)
+        prob = _make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)
+        before = cameras
+        cameras, _, info, graph, values = solve(prob, cfg)
+        run.solves.append(info)
+        run.progress.step()
+        cameras = run.clocks(cameras)  # after the last round too: the final association uses it
+        run.progress.step()
+        r += 1
+        moved_deg, moved_focal = camera_change(before, cameras)
+        log.info("round %d moved the cameras by up to %.3f deg, focal %.2f %%", r, moved_deg,
+                 100 * moved_focal)
+        if r >= most or (r >= least and moved_deg <= cfg.round_tolerance_deg
+                         and moved_focal <= cfg.round_tolerance_focal):
+            break
+        run.progress.total += 3 * (r >= least)  # one more round than planned
+    if cfg.use_bones:  # for the intrinsics passes (same association; clocks do not enter)
+        assoc, targets = _track_targets(assoc, cameras, cfg, run.joints, run.height)
+    assoc = replace(assoc, velocity=ground_velocity(assoc))  # the passes' walking lean
+    return _Fit(cameras, assoc, sel, sel, kw | {"targets": targets}, graph, values, prob)
+
+
+@dataclass
+class _PrincipalPoint:
+    """The principal-point pass's outcome (:func:`_principal_point_pass`)."""
+
+    fit: _Fit
+    moved_deg: float  # how far its update moved any camera from the pass (deg)
+    spread_args: tuple  # (assoc, chosen, cameras, kw): the pass's problem, for the split halves
+
+
+def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint | None]:
+    """The principal-point pass from ``fit`` (``RefineConfig.principal_point``), and its
+    updates on persons associated anew with its cameras.
+
+    Returns ``fit`` with the pass's person-frames counted as seen, and the outcome if the pass
+    was run and kept (else None).
+    """
+    cfg = run.cfg
+    if cfg.principal_point == "never":
+        return fit, None
+    chosen = _pass_groups(fit.assoc, fit.sel, run.data.sizes, run.joints, cfg,
+                          cfg.intrinsics_groups)
+    res = _intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, run.rng, model="s2",
+                           mode=cfg.principal_point, min_gain=-0.005, fitted=fit.fitted)
+    fit = replace(fit, fitted=np.union1d(fit.fitted, chosen))
+    if res is None:
+        return fit, None
+    spread_args = (fit.assoc, chosen, fit.cameras, fit.kw)
+    assoc, sel, fitted = fit.assoc, fit.sel, fit.fitted
+    picks = (assoc, sel, chosen, fitted)
+    if cfg.principal_point_reassociate and cfg.use_bones and cfg.principal_point_updates:
+        picks = _reassociate(run.rounds, res[0], cfg, run.height, run.data.reference,
+                             run.data.sizes, run.joints, cfg.intrinsics_groups,
+                             assoc.times[fitted])
+    kw, moved = fit.kw, 0.0
+    settled = _settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)
+    if settled[2] is not res:  # solved (on the new association, if any)
+        moved = camera_change(res[0], settled[2][0])[0]
+        _, sel, chosen, fitted = picks
+        assoc, kw, res = settled
+    cameras, _, info, graph, values, prob = res
+    run.solves.append(info)
+    return fit, _PrincipalPoint(_Fit(cameras, assoc, sel, fitted, kw, graph, values, prob),
+                                moved, spread_args)
+
+
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
            progress: Callable[[float], None] | None = None,
@@ -591,112 +737,67 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
     min_rounds, max_rounds = _round_limits(cfg)
-    # steps: 3 per round, the two intrinsics passes, the reconstruction (roughly equal times);
-    # an extra round adds 3 steps, and the fraction never goes back
-    n_steps, done, shown = 3 * min_rounds + 3, 0, 0.0
-
-    def step() -> None:
-        nonlocal done, shown
-        done += 1
-        shown = max(shown, min(done / n_steps, 1.0))
-        if progress is not None:
-            progress(shown)
-
+    # steps: 3 per round, the two intrinsics passes, the reconstruction
+    prog = _Progress(progress, 3 * min_rounds + 3)
     data = prepare(tracks, initial)
-    cameras = list(initial.cameras)
     unknown = sorted(set(fixed_intrinsics) - set(initial.names))
     if unknown:
         raise InputError(f"known intrinsics given for cameras {unknown} that the calibration "
                          f"lacks ({initial.names})", camera=unknown[0], field="known_intrinsics")
-    fixed = frozenset(initial.names.index(n) for n in fixed_intrinsics)
-    stage3_rates = [c.time_rate for c in initial.cameras]  # the clock search's rate anchors
-    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
-    solves: list[SolveInfo] = []
-    targets: dict[int, NDArray] | None = None
     # the rounds need enough person-frames to choose max_groups from, not every frame
     rounds = replace(data, times=data.times[::max(1, -(-len(data.times) // cfg.round_frames))])
-    r = 0
-    while True:
-        refined = r > 0
-        assoc = _round_association(rounds, cameras, cfg, height, data.reference,
-                                   refined=refined)
-        if assoc.n_groups < 5:
-            raise RefinementFailed(f"only {assoc.n_groups} person-frames are seen by two cameras"
-                                   " at the same time: check the time offsets and overlap")
-        step()
-        if cfg.use_bones and refined:
-            # track numbers are this association's own: the targets must come from it too
-            assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
-        sel = _select(assoc, data.sizes, cfg.max_groups, joints, cfg)
-        kw = dict(height=height, n_persons=persons_per_time(assoc), reference=data.reference,
-                  targets=targets, fixed=fixed)
-        prob = _make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)
-        before = cameras
-        cameras, _, info, graph, values = solve(prob, cfg)
-        solves.append(info)
-        step()
-        if cfg.refine_time:  # after the last round too: the final association uses it
-            cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
-                                    anchor_rates=stage3_rates)
-        step()
-        r += 1
-        moved_deg, moved_focal = camera_change(before, cameras)
-        log.info("round %d moved the cameras by up to %.3f deg, focal %.2f %%", r, moved_deg,
-                 100 * moved_focal)
-        if r >= max_rounds or (r >= min_rounds and moved_deg <= cfg.round_tolerance_deg
-                               and moved_focal <= cfg.round_tolerance_focal):
-            break
-        n_steps += 3 * (r >= min_rounds)  # one more round than planned
-    if cfg.use_bones:  # for the intrinsics passes (same association; clocks do not enter)
-        assoc, targets = _track_targets(assoc, cameras, cfg, joints, height)
-    distortion, n_selected, n_passes = False, sel.size, 0
-    passes = [("s2", cfg.principal_point, -0.005, cfg.intrinsics_groups),
-              ("ds2", cfg.distortion, cfg.distortion_min_gain, cfg.distortion_groups)]
-    pp_se, fitted = None, sel  # the person-frames the current cameras were solved on
-    assoc = replace(assoc, velocity=ground_velocity(assoc))  # the passes' walking lean
-    pass_kw = kw | {"targets": targets}  # the last round's bone targets
-    for model, mode, gain, budget in passes:
-        res = None
-        if mode != "never":  # a skipped pass selects nothing
-            chosen = _pass_groups(assoc, sel, data.sizes, joints, cfg, budget)
-            res = _intrinsics_pass(assoc, chosen, cameras, cfg, pass_kw, rng, model=model,
-                                   mode=mode, min_gain=gain, fitted=fitted)
-            fitted = np.union1d(fitted, chosen)
+    run = _Run(data, rounds, cfg, height, np.array([CANONICAL_INDEX[n] for n in cfg.joints]),
+               frozenset(initial.names.index(n) for n in fixed_intrinsics),
+               [c.time_rate for c in initial.cameras], rng, prog)
+    fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
+                        refined=False)
+    fit, pp = _principal_point_pass(run, fit)
+    if pp is not None and pp.moved_deg > cfg.principal_point_rerun_deg:
+        # the rounds' association, clocks and bone targets were made at a geometry about that
+        # far off (principal points at the image centre): once more at the pass's
+        log.info("principal-point update moved the cameras by %.3f deg: one more round and "
+                 "pass at its principal points", pp.moved_deg)
+        prog.total += 3
+        fit = _solve_rounds(run, pp.fit.cameras, least=1, most=1, refined=True)
+        fit, pp = _principal_point_pass(run, fit)
+    prog.step()
+    pp_se = None
+    if pp is not None:
+        # the split halves start where the pass did (their spread is the pass's, not the
+        # update's); nothing after them depends on the pass having run first
+        p_assoc, p_chosen, p_cameras, p_kw = pp.spread_args
+        pp_se = principal_point_spread(p_assoc, p_chosen, p_cameras, cfg, p_kw,
+                                       max_groups=cfg.spread_groups)
+        fit = pp.fit
+    distortion = False
+    if cfg.distortion != "never":
+        chosen = _pass_groups(fit.assoc, fit.sel, data.sizes, run.joints, cfg,
+                              cfg.distortion_groups)
+        res = _intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
+                               mode=cfg.distortion, min_gain=cfg.distortion_min_gain,
+                               fitted=fit.fitted)
         if res is not None:
-            if model == "s2":  # from the same start as the pass
-                pp_se = principal_point_spread(assoc, chosen, cameras, cfg, pass_kw,
-                                               max_groups=cfg.spread_groups)
-                picks = (assoc, sel, chosen, fitted)
-                if (cfg.principal_point_reassociate and cfg.use_bones
-                        and cfg.principal_point_updates):
-                    picks = _reassociate(rounds, res[0], cfg, height, data.reference, data.sizes,
-                                         joints, budget, assoc.times[fitted])
-                settled = _settle_principal_points(picks[0], picks[2], res, cfg, pass_kw,
-                                                   joints, height)
-                if settled[2] is not res:  # solved (on the new association, if any)
-                    _, sel, chosen, fitted = picks
-                    assoc, pass_kw, res = settled
             cameras, _, info, graph, values, prob = res
-            solves.append(info)
-            n_passes += 1
-            distortion = distortion or model == "ds2"
-            n_selected = chosen.size
-        step()
+            run.solves.append(info)
+            fit = replace(fit, cameras=cameras, graph=graph, values=values, prob=prob)
+            distortion = True
+    prog.step()
+    cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
     if prob.obs.shape[0] > cfg.max_groups:
-        graph, values, prob = _rounds_size_graph(assoc, sel, cameras, cfg, pass_kw, prob.model)
+        graph, values, prob = _rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
+                                                 prob.model)
     sigmas = marginal_sigmas(graph, values, prob)
     if pp_se is not None:
         sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
-    if cfg.refine_time and cfg.time_final_update and n_passes:
+    if cfg.time_final_update and (pp is not None or distortion):
         # the passes moved the geometry after the rounds' last clock update
-        cameras = refine_clocks(data, cameras, cfg, joints, height, rng,
-                                anchor_rates=stage3_rates)
+        cameras = run.clocks(cameras)
     final, points, err = reconstruct(data, cameras, cfg, height)
-    step()
+    prog.step()
     quality = _report(final, err, cameras, sigmas, cfg)
     poses, ids, resid = poses_by_slot(final, points, data.times, err)
     calib = Calibration(cameras, reference_camera=initial.reference_camera,
                         quality={n: q.to_dict() for n, q in quality.items()},
                         world=initial.world)
-    return RefineResult(calib, poses, data.times, ids, quality, final, solves, distortion,
-                        n_selected, resid)
+    return RefineResult(calib, poses, data.times, ids, quality, final, run.solves, distortion,
+                        fit.prob.obs.shape[0], resid)
