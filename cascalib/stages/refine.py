@@ -690,6 +690,7 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
     settled = _settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)
     if settled[2] is not res:  # solved (on the new association, if any)
         moved = camera_change(res[0], settled[2][0])[0]
+        log.info("principal-point update moved the cameras by up to %.3f deg", moved)
         _, sel, chosen, fitted = picks
         assoc, kw, res = settled
     cameras, _, info, graph, values, prob = res
@@ -752,11 +753,12 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
     fit, pp = _principal_point_pass(run, fit)
-    if pp is not None and pp.moved_deg > cfg.principal_point_rerun_deg:
+    for _ in range(cfg.principal_point_reruns):
+        if pp is None or pp.moved_deg <= cfg.principal_point_rerun_deg:
+            break
         # the rounds' association, clocks and bone targets were made at a geometry about that
         # far off (principal points at the image centre): once more at the pass's
-        log.info("principal-point update moved the cameras by %.3f deg: one more round and "
-                 "pass at its principal points", pp.moved_deg)
+        log.info("one more round and pass at the principal-point pass's principal points")
         prog.total += 3
         fit = _solve_rounds(run, pp.fit.cameras, least=1, most=1, refined=True)
         fit, pp = _principal_point_pass(run, fit)

@@ -409,21 +409,24 @@ def test_rounds_continue_while_the_cameras_still_move(tolerance, n_rounds, solve
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
 
 
-@pytest.mark.parametrize(("rerun_deg", "solves"), [(1e3, 2), (0.0, 4)])
-def test_principal_point_rerun_when_the_update_moved_the_cameras(rerun_deg, solves, caplog):
+@pytest.mark.parametrize(("rerun_deg", "reruns", "solves"),
+                         [(1e3, 2, 2), (0.0, 1, 4), (0.0, 2, 6), (0.0, 0, 2)])
+def test_principal_point_rerun_when_the_update_moved_the_cameras(rerun_deg, reruns, solves,
+                                                                 caplog):
     """A principal-point update that moved a camera by more than principal_point_rerun_deg
-    brings one more round and pass: 1 round + the pass, or both twice."""
+    brings one more round and pass, at most principal_point_reruns times: 1 round + the pass,
+    then both again per rerun."""
     scene = make_scene(n_frames=30, n_persons=2, noise_px=0.5, offsets=(0, 0, 0, 0), seed=3)
     start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02, offset_frames=0.0)
     cfg = RefineConfig(max_groups=40, intrinsics_groups=60, distortion="never",
                        principal_point="always", refine_time=False, n_rounds=1,
-                       principal_point_rerun_deg=rerun_deg)
+                       principal_point_rerun_deg=rerun_deg, principal_point_reruns=reruns)
     fractions = []
     with caplog.at_level("INFO", logger="cascalib.stages.refine"):
         res = refine(scene.tracks, start, cfg, height=float(scene.heights.mean()), rng=0,
                      progress=fractions.append)
     assert len(res.solves) == solves
-    assert ("one more round and pass" in caplog.text) == (rerun_deg == 0.0)
+    assert caplog.text.count("one more round and pass") == (solves - 2) // 2
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
     # the pass's principal points leave the image centre (the rerun's round starts there)
     assert any(np.linalg.norm(c.K[:2, 2] - np.array(c.image_size) / 2) > 0.1
