@@ -659,7 +659,8 @@ class _PrincipalPoint:
 
     fit: _Fit
     moved_deg: float  # how far its update moved any camera from the pass (deg)
-    spread_args: tuple  # (assoc, chosen, cameras, kw): the pass's problem, for the split halves
+    start: _Fit  # where the pass started, and its person-frames: for the split halves
+    chosen: NDArray[np.int64]
 
 
 def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint | None]:
@@ -679,24 +680,22 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
     fit = replace(fit, fitted=np.union1d(fit.fitted, chosen))
     if res is None:
         return fit, None
-    spread_args = (fit.assoc, chosen, fit.cameras, fit.kw)
-    assoc, sel, fitted = fit.assoc, fit.sel, fit.fitted
-    picks = (assoc, sel, chosen, fitted)
+    picks = (fit.assoc, fit.sel, chosen, fit.fitted)
     if cfg.principal_point_reassociate and cfg.use_bones and cfg.principal_point_updates:
         picks = _reassociate(run.rounds, res[0], cfg, run.height, run.data.reference,
                              run.data.sizes, run.joints, cfg.intrinsics_groups,
-                             assoc.times[fitted])
-    kw, moved = fit.kw, 0.0
+                             fit.assoc.times[fit.fitted])
+    assoc, sel, fitted, kw, moved = fit.assoc, fit.sel, fit.fitted, fit.kw, 0.0
     settled = _settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)
     if settled[2] is not res:  # solved (on the new association, if any)
         moved = camera_change(res[0], settled[2][0])[0]
         log.info("principal-point update moved the cameras by up to %.3f deg", moved)
-        _, sel, chosen, fitted = picks
+        _, sel, _, fitted = picks
         assoc, kw, res = settled
     cameras, _, info, graph, values, prob = res
     run.solves.append(info)
     return fit, _PrincipalPoint(_Fit(cameras, assoc, sel, fitted, kw, graph, values, prob),
-                                moved, spread_args)
+                                moved, fit, chosen)
 
 
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
@@ -767,9 +766,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     if pp is not None:
         # the split halves start where the pass did (their spread is the pass's, not the
         # update's); nothing after them depends on the pass having run first
-        p_assoc, p_chosen, p_cameras, p_kw = pp.spread_args
-        pp_se = principal_point_spread(p_assoc, p_chosen, p_cameras, cfg, p_kw,
-                                       max_groups=cfg.spread_groups)
+        pp_se = principal_point_spread(pp.start.assoc, pp.chosen, pp.start.cameras, cfg,
+                                       pp.start.kw, max_groups=cfg.spread_groups)
         fit = pp.fit
     distortion = False
     if cfg.distortion != "never":
