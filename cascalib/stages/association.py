@@ -33,8 +33,8 @@ from cascalib.nanstats import joint_extent, nanmean, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
-__all__ = ["Association", "associate", "frame_links", "interpolate_views", "link_tracks",
-           "stitch_tracks"]
+__all__ = ["Association", "associate", "frame_links", "interpolate_slots", "interpolate_views",
+           "link_tracks", "linked_pairs", "stitch_tracks"]
 
 log = logging.getLogger(__name__)
 
@@ -189,26 +189,83 @@ def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     fr = frames[inside]
     k0 = np.clip(np.floor(fr), 0, n_f - 1).astype(np.int64)
     w = np.clip(fr - k0, 0.0, 1.0)[:, None, None, None]
-    k1 = np.minimum(k0 + 1, n_f - 1)
-    a = keypoints[k0]  # (T', P, J, D)
-    nxt = links[k0]  # (T', P)
-    # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
-    b = keypoints[k1[:, None], np.maximum(nxt, 0)]
-    b[nxt < 0] = np.nan
-    res = b - a  # a + w (b - a), in place: the clock search calls this on large arrays
-    res *= w
-    res += a
-    # where one side is missing, the nearer frame's value if it is within half a frame
-    gap = ~np.isfinite(res)
-    if gap.any():
-        # a within half a frame before (b at exactly half a frame if a is missing), else b
-        near = np.where(w <= 0.5, np.where(np.isfinite(a) | (w < 0.5), a, b), b)
-        np.copyto(res, near, where=gap)
+    a, b = linked_pairs(keypoints, links, k0)
+    res = _blend(a, b, w)
     if inside.all():
         return res
     out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
     out[inside] = res
     return out
+
+
+def interpolate_slots(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                      frames: NDArray[np.float64], slots: NDArray[np.int64]
+                      ) -> NDArray[np.float64]:
+    """:func:`interpolate_views` of a few persons per time only.
+
+    Parameters
+    ----------
+    keypoints, links : ndarray
+        As for :func:`interpolate_views`.
+    frames : ndarray, shape (T,)
+        Fractional frame indices.
+    slots : ndarray of int, shape (T, K)
+        Person slots of frame ``floor(frames)`` (clipped to the recording), -1 for none.
+
+    Returns
+    -------
+    ndarray, shape (T, K, J, D)
+        ``interpolate_views(keypoints, links, frames)[t, slots[t, k]]``; NaN for slot -1.
+    """
+    n_f = keypoints.shape[0]
+    inside = (frames > -0.5) & (frames < n_f - 0.5)
+    k0 = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
+    w = np.clip(frames - k0, 0.0, 1.0)[:, None, None, None]
+    a, b = linked_pairs(keypoints, links, k0, slots)
+    res = _blend(a, b, w)
+    res[(slots < 0) | ~inside[:, None]] = np.nan
+    return res
+
+
+def linked_pairs(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                 frames: NDArray[np.int64], slots: NDArray[np.int64] | None = None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each person's detection in frame ``k`` and the one linked to it in frame ``k + 1``
+    (NaN where unlinked, as everyone in the last frame) for whole frames ``frames`` (T,), or
+    only for ``slots`` (T, K) of them (slot -1 gives slot 0's values: mask them yourself).
+
+    Returns
+    -------
+    a, b : ndarray, shape (T, P or K, J, D)
+    """
+    n_f = keypoints.shape[0]
+    k1 = np.minimum(frames + 1, n_f - 1)[:, None]
+    if slots is None:
+        a = keypoints[frames]  # (T, P, J, D)
+        nxt = links[frames]  # (T, P)
+    else:
+        s = np.maximum(slots, 0)
+        a = keypoints[frames[:, None], s]  # (T, K, J, D)
+        nxt = links[frames[:, None], s]
+    # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
+    b = keypoints[k1, np.maximum(nxt, 0)]
+    b[nxt < 0] = np.nan
+    return a, b
+
+
+def _blend(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[np.float64]
+           ) -> NDArray[np.float64]:
+    """``a + w (b - a)`` (computed in place in a new array: the clock search calls this on large
+    arrays); where one side is missing, the nearer frame's value if it is within half a frame
+    (``a`` before, ``b`` at exactly half a frame if ``a`` is missing), else NaN."""
+    res = b - a
+    res *= w
+    res += a
+    gap = ~np.isfinite(res)
+    if gap.any():
+        near = np.where(w <= 0.5, np.where(np.isfinite(a) | (w < 0.5), a, b), b)
+        np.copyto(res, near, where=gap)
+    return res
 
 
 # -- 2. association per time -----------------------------------------------------------------------

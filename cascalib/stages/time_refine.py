@@ -36,7 +36,12 @@ from numpy.typing import NDArray
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
 from cascalib.nanstats import nanmedian_last
-from cascalib.stages.association import Association, interpolate_views
+from cascalib.stages.association import (
+    Association,
+    interpolate_slots,
+    interpolate_views,
+    linked_pairs,
+)
 from cascalib.stages.triangulation import huber_weight, triangulate
 
 __all__ = ["previous_slots", "refine_offsets", "track_velocity"]
@@ -67,6 +72,50 @@ def _follow(links: NDArray[np.int64], prev: NDArray[np.int64], k: NDArray[np.int
         k = k + (1 if steps > 0 else -1)
         p = nxt
     return k, p
+
+
+def _nearest_of(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                frames: NDArray[np.float64], slots: NDArray[np.int64] | None,
+                target: NDArray[np.float64]
+                ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """The detected person nearest to ``target`` (T, J, 2) by median joint distance, among
+    ``slots`` (T, K; -1 for none) of frames ``floor(frames)`` or, with None, among all.
+
+    Returns its slot (T,), keypoints (T, J, 2) and distance (T,), inf where nobody is seen
+    (ties go to the first slot, as with argmin).
+    """
+    if slots is None:
+        cand = interpolate_views(keypoints, links, frames)  # (T, P, J, 2)
+        slots = np.broadcast_to(np.arange(cand.shape[1]), cand.shape[:2])
+    else:
+        cand = interpolate_slots(keypoints, links, frames, slots)
+    dist = np.nan_to_num(nanmedian_last(norm_xy(cand - target[:, None])), nan=np.inf)
+    t = np.arange(len(frames))
+    i = np.argmin(dist, axis=1)
+    return slots[t, i], cand[t, i], dist[t, i]
+
+
+def _within_reach(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                  frames: NDArray[np.float64], target: NDArray[np.float64], reach: float,
+                  most: int = 3) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Slots (T, ``most``; -1 padding) of the persons of frames ``floor(frames)`` whose median
+    joint distance to ``target`` can fall below ``reach`` while the frame and its half stay the
+    same, and whether that is all of them (T,; no more than ``most``).
+
+    Inside that cell a joint moves linearly between its two detections and no joint appears
+    or vanishes (:func:`~cascalib.stages.association.interpolate_views` takes a missing joint
+    from the nearer frame), so by at most half of the distance between the two detections; a
+    median of distances moves by no more than its largest joint does.
+    """
+    k = np.clip(np.floor(frames), 0, keypoints.shape[0] - 1).astype(np.int64)
+    a, b = linked_pairs(keypoints, links, k)
+    step = np.nan_to_num(norm_xy(b - a), nan=0.0).max(-1)  # (T, P): largest joint move
+    now = interpolate_views(keypoints, links, frames)
+    dist = np.nan_to_num(nanmedian_last(norm_xy(now - target[:, None])), nan=np.inf)
+    near = dist - 0.5 * step < reach
+    order = np.argsort(~near, axis=1, kind="stable")[:, :most]  # the persons in reach first
+    slots = np.where(np.take_along_axis(near, order, 1), order, -1)
+    return slots, near.sum(1) <= most
 
 
 def track_velocity(keypoints: NDArray[np.float64], links: NDArray[np.int64],
@@ -267,24 +316,50 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     # fancy index alone leaves the joints axis outermost in memory (5x slower to resample)
     kp = np.ascontiguousarray(keypoints[:, :, joints, :2])
     prev = previous_slots(links)
-    g = np.arange(n_g)
     # the rate prior in the normal equation's units (px^2): huber_px of residual per rate_sd
     prior = (huber_px / rate_sd) ** 2 if rate_sd > 0 else 0.0
     info = np.zeros(n_g)  # offset information of each group at the last evaluation
     grad_g = np.zeros(n_g)  # offset gradient (sum w J_d r) of each group there
+    n_f = kp.shape[0]
+    start: dict[str, NDArray[np.int64]] = {}  # each group's frame, half and persons in reach
+
+    def nearest(frames: NDArray[np.float64]
+                ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+        """Each group's nearest detected person (median joint distance) at ``frames``: its
+        slot in frame ``floor(frames)``, keypoints (G, J, 2) and distance (inf if none).
+
+        Only a person nearer than ``cap_px`` counts (the group is left out otherwise), so
+        where ``frames`` stays in the frame and half-frame of the first call, only the few
+        persons that can come that near there (:func:`_within_reach`) are compared; every
+        person elsewhere, and where more than a few can. The same persons are found as by
+        comparing all of them at every step, which in a crowd (17 slots) was most of the
+        search's time.
+        """
+        k = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
+        half = np.sign(frames - k - 0.5).astype(np.int64)
+        if not start:
+            slots, few = _within_reach(kp, links, frames, proj, cap_px)
+            start.update(k=k, half=half, slots=slots, few=few)
+        p, x, dist = np.empty(n_g, dtype=np.int64), np.empty((n_g,) + proj.shape[1:]), \
+            np.empty(n_g)
+        same = (k == start["k"]) & (half == start["half"]) & start["few"]
+        for rows, slots in ((np.flatnonzero(same), start["slots"][same]),
+                            (np.flatnonzero(~same), None)):
+            if rows.size:
+                p[rows], x[rows], dist[rows] = _nearest_of(kp, links, frames[rows], slots,
+                                                           proj[rows])
+        return p, x, dist
 
     def normal_equation(theta: NDArray[np.float64]
                         ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
         """``sum w J.r`` (2,) and ``sum w J J^T`` (2, 2) at clock change ``theta``, with
         ``J = d residual / d (delta, rho)`` per joint."""
         frames = (times - cam.time_offset - theta[0] - theta[1] * u[:, 0, 0]) / cam.time_rate
-        cand = interpolate_views(kp, links, frames)
-        dist = np.nan_to_num(nanmedian_last(norm_xy(cand - proj[:, None])), nan=np.inf)
-        p = np.argmin(dist, axis=-1)  # the nearest detected person of each group
-        r = cand[g, p] - proj  # (G, J, 2)
+        p, x, dist = nearest(frames)
+        r = x - proj  # (G, J, 2)
         jac = track_velocity(kp, links, prev, frames, p) / -cam.time_rate
         rn, vn = norm_xy(r), norm_xy(jac)
-        use = (dist[g, p] < cap_px)[:, None] & np.isfinite(rn) & np.isfinite(vn)
+        use = (dist < cap_px)[:, None] & np.isfinite(rn) & np.isfinite(vn)
         if use.sum() < 50:
             return np.zeros(2), np.zeros((2, 2)), 0
         # the fastest 1 % are swapped or outlying joints: their velocity would dominate the sums

@@ -11,6 +11,7 @@ from cascalib.stages.association import (
     Association,
     associate,
     frame_links,
+    interpolate_slots,
     interpolate_views,
 )
 from cascalib.stages.frame_selection import select_groups
@@ -71,6 +72,61 @@ def test_frame_links_follow_persons():
     mid = interpolate_views(kp, links, np.array([1.5]))
     expect = base[perm[1]] + 3.0
     np.testing.assert_allclose(mid[0, :, :, :2], expect)
+
+
+def test_interpolated_slots_are_those_of_all_persons():
+    """interpolate_slots gives interpolate_views' values of the chosen slots, with missing
+    joints, broken links, times outside the recording and slot -1 (NaN)."""
+    rng = np.random.default_rng(4)
+    n_f, n_p = 40, 5
+    kp = rng.uniform(0, 500, (n_f, n_p, 26, 3))
+    kp[rng.random((n_f, n_p, 26)) < 0.2] = np.nan  # missing joints
+    kp[rng.random((n_f, n_p)) < 0.15] = np.nan  # missing persons
+    links = np.stack([rng.permutation(n_p) for _ in range(n_f)])
+    links[rng.random((n_f, n_p)) < 0.2] = -1
+    links[-1] = -1
+    frames = np.concatenate([rng.uniform(-2, n_f + 2, 300), np.arange(-1, n_f + 1, 0.5)])
+    slots = rng.integers(-1, n_p, (frames.size, 3))
+    full = interpolate_views(kp, links, frames)
+    want = full[np.arange(frames.size)[:, None], np.maximum(slots, 0)]
+    want[slots < 0] = np.nan
+    got = interpolate_slots(kp, links, frames, slots)
+    assert np.isfinite(got).any() and np.isnan(got).any()
+    np.testing.assert_array_equal(got, want)
+
+
+def test_clock_search_compares_the_persons_in_reach_as_it_would_all(monkeypatch):
+    """After its first step the clock search compares only the persons that can come within
+    its cap (where the step kept the frame and its half): on 8 persons with extra detections
+    it finds exactly the clocks that comparing every person at every step finds, and
+    comparing a single person of each group does not."""
+    import cascalib.stages.time_refine as time_refine
+    sc = make_scene(n_frames=120, n_persons=8, noise_px=2.0, outlier_rate=0.05,
+                    offsets=(0, 0.3, -0.4, 0.2), seed=5)
+    cams = [c.with_(time_offset=c.time_offset + d) for c, d in
+            zip(sc.truth, (0, -0.6, 0.45, 0.3), strict=True)]
+    data = _prepare(sc.tracks, sc.truth)
+    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
+    assoc = associate(_views(data, cams), cams, data.times, height=1.72, ankle_height=0.085,
+                      gate_m=0.6, consistency=0.3)
+    reach = time_refine._within_reach
+
+    def run() -> list[float]:
+        out = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+        return [c.time_offset for c in out]
+
+    fast = run()
+    monkeypatch.setattr(time_refine, "_within_reach", lambda kp, links, frames, target, r: (
+        np.zeros((len(frames), 1), dtype=int), np.zeros(len(frames), dtype=bool)))
+    assert run() == fast  # every person at every step: the same clocks, to the last bit
+    assert fast != [c.time_offset for c in cams]  # and they moved
+
+    def near_only(kp, links, frames, target, r):  # one person of each group only
+        slots, _ = reach(kp, links, frames, target, np.inf, most=1)
+        return slots, np.ones(len(frames), dtype=bool)
+
+    monkeypatch.setattr(time_refine, "_within_reach", near_only)
+    assert run() != fast
 
 
 def test_association_handles_missing_and_extra_persons():
