@@ -95,6 +95,13 @@ def _nearest_of(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     return slots[t, i], cand[t, i], dist[t, i]
 
 
+def _cell(frames: NDArray[np.float64], n_f: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The frame (``floor``, clipped to the recording) of fractional frames, and the half of it
+    they fall in (-1, 0 at exactly half-way, 1)."""
+    k = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
+    return k, np.sign(frames - k - 0.5).astype(np.int64)
+
+
 def _within_reach(keypoints: NDArray[np.float64], links: NDArray[np.int64],
                   frames: NDArray[np.float64], target: NDArray[np.float64], reach: float,
                   most: int = 3) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -107,8 +114,7 @@ def _within_reach(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     from the nearer frame), so by at most half of the distance between the two detections; a
     median of distances moves by no more than its largest joint does.
     """
-    k = np.clip(np.floor(frames), 0, keypoints.shape[0] - 1).astype(np.int64)
-    a, b = linked_pairs(keypoints, links, k)
+    a, b = linked_pairs(keypoints, links, _cell(frames, keypoints.shape[0])[0])
     step = np.nan_to_num(norm_xy(b - a), nan=0.0).max(-1)  # (T, P): largest joint move
     now = interpolate_views(keypoints, links, frames)
     dist = np.nan_to_num(nanmedian_last(norm_xy(now - target[:, None])), nan=np.inf)
@@ -320,8 +326,12 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     prior = (huber_px / rate_sd) ** 2 if rate_sd > 0 else 0.0
     info = np.zeros(n_g)  # offset information of each group at the last evaluation
     grad_g = np.zeros(n_g)  # offset gradient (sum w J_d r) of each group there
+    # the persons each group may be matched to while the clock stays in the frame and
+    # half-frame of the start (theta = 0: the first step)
     n_f = kp.shape[0]
-    start: dict[str, NDArray[np.int64]] = {}  # each group's frame, half and persons in reach
+    frames0 = (times - cam.time_offset) / cam.time_rate
+    cell0 = _cell(frames0, n_f)
+    reach, few = _within_reach(kp, links, frames0, proj, cap_px)
 
     def nearest(frames: NDArray[np.float64]
                 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
@@ -329,22 +339,16 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         slot in frame ``floor(frames)``, keypoints (G, J, 2) and distance (inf if none).
 
         Only a person nearer than ``cap_px`` counts (the group is left out otherwise), so
-        where ``frames`` stays in the frame and half-frame of the first call, only the few
-        persons that can come that near there (:func:`_within_reach`) are compared; every
-        person elsewhere, and where more than a few can. The same persons are found as by
-        comparing all of them at every step, which in a crowd (17 slots) was most of the
-        search's time.
+        where ``frames`` stays in the frame and half-frame of the start, only the few persons
+        that can come that near there (:func:`_within_reach`) are compared; every person
+        elsewhere, and where more than a few can. The same persons are found as by comparing
+        all of them at every step, which in a crowd (17 slots) was most of the search's time.
         """
-        k = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
-        half = np.sign(frames - k - 0.5).astype(np.int64)
-        if not start:
-            slots, few = _within_reach(kp, links, frames, proj, cap_px)
-            start.update(k=k, half=half, slots=slots, few=few)
+        k, half = _cell(frames, n_f)
+        same = (k == cell0[0]) & (half == cell0[1]) & few
         p, x, dist = np.empty(n_g, dtype=np.int64), np.empty((n_g,) + proj.shape[1:]), \
             np.empty(n_g)
-        same = (k == start["k"]) & (half == start["half"]) & start["few"]
-        for rows, slots in ((np.flatnonzero(same), start["slots"][same]),
-                            (np.flatnonzero(~same), None)):
+        for rows, slots in ((np.flatnonzero(same), reach[same]), (np.flatnonzero(~same), None)):
             if rows.size:
                 p[rows], x[rows], dist[rows] = _nearest_of(kp, links, frames[rows], slots,
                                                            proj[rows])
