@@ -21,6 +21,7 @@ lengths can be tied over time.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -567,40 +568,47 @@ def link_tracks(assoc: Association, *, gate_m: float = 0.4, max_gap: float = 3.0
     uniq, starts = np.unique(assoc.times[order], return_index=True)
     groups = np.split(order, starts[1:])
     next_id = 0
-    # live tracks: id -> [last time, position, velocity (m per reference frame), updates]
+    # live tracks: id -> [last time, x, y, velocity x, y (m per reference frame), updates], in
+    # Python floats: a few 2-vectors per time, where numpy's per-call cost was most of the time
     live: dict[int, list] = {}
-    for t, idx in zip(uniq, groups, strict=True):
+    ground = assoc.ground.tolist()
+    for t, idx in zip(uniq.tolist(), groups, strict=True):
         # tracks silent for longer than max_gap can never be linked again: forget them, so
         # each time looks only at the few live tracks (not at every track ever started)
         for k in [k for k, st in live.items() if t - st[0] > max_gap]:
             del live[k]
         ids = list(live)
-        g = assoc.ground[idx]
+        idx = idx.tolist()
         if ids:
-            pred = np.array([live[k][1] + live[k][2] * (t - live[k][0]) for k in ids])
-            cost = np.nan_to_num(np.linalg.norm(g[:, None] - pred[None], axis=-1), nan=1e9)
+            pred = [(st[1] + st[3] * (t - st[0]), st[2] + st[4] * (t - st[0]))
+                    for st in (live[k] for k in ids)]
+            cost = np.nan_to_num(np.array(
+                [[math.sqrt((gx - px) * (gx - px) + (gy - py) * (gy - py)) for px, py in pred]
+                 for gx, gy in (ground[i] for i in idx)]), nan=1e9)
             r, q = linear_sum_assignment(cost)
-            for i, k in zip(r, q, strict=True):
+            for i, k in zip(r.tolist(), q.tolist(), strict=True):
                 if cost[i, k] < gate_m:
                     tracks[idx[i]] = ids[k]
-        for i, gi in zip(idx, g, strict=True):
-            if not np.isfinite(gi).all():
+        for i in idx:
+            gx, gy = ground[i]
+            if not (math.isfinite(gx) and math.isfinite(gy)):
                 continue
             if tracks[i] < 0:
                 tracks[i] = next_id
-                live[next_id] = [float(t), gi.copy(), np.zeros(2), 0]
+                live[next_id] = [t, gx, gy, 0.0, 0.0, 0]
                 next_id += 1
                 continue
             st = live[int(tracks[i])]
-            dt = float(t) - st[0]
-            st[3] += 1
-            m = st[3] + 1  # points in the track so far
+            dt = t - st[0]
+            st[5] += 1
+            m = st[5] + 1  # points in the track so far
             # the least-squares line's gains while the track is young, then the steady ones
             a = max(alpha, 2 * (2 * m - 1) / (m * (m + 1)))
             b = max(beta, 6 / (m * (m + 1)))
-            p = st[1] + st[2] * dt
-            res = gi - p
-            st[0], st[1], st[2] = float(t), p + a * res, st[2] + b * res / max(dt, 1e-9)
+            px, py = st[1] + st[3] * dt, st[2] + st[4] * dt
+            rx, ry = gx - px, gy - py
+            step = max(dt, 1e-9)
+            st[:5] = t, px + a * rx, py + a * ry, st[3] + b * rx / step, st[4] + b * ry / step
     lone = tracks < 0  # groups without a ground position
     tracks[lone] = next_id + np.arange(lone.sum())
     return Association(assoc.times, assoc.obs, tracks, assoc.ground, assoc.residual)
