@@ -35,7 +35,7 @@ from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
 __all__ = ["Association", "associate", "frame_links", "interpolate_slots", "interpolate_views",
-           "link_tracks", "linked_pairs", "stitch_tracks"]
+           "link_tracks", "linked_pairs", "person_distances", "stitch_tracks"]
 
 log = logging.getLogger(__name__)
 
@@ -197,6 +197,13 @@ def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
     out[inside] = res
     return out
+
+
+def person_distances(views: NDArray[np.float64], target: NDArray[np.float64]
+                     ) -> NDArray[np.float64]:
+    """Median joint distance (px) of each person of ``views`` (T, P, J, 2) to ``target``
+    (T, J, 2), shape (T, P); inf where they share no joint."""
+    return np.nan_to_num(nanmedian_last(norm_xy(views - target[:, None])), nan=np.inf)
 
 
 def interpolate_slots(keypoints: NDArray[np.float64], links: NDArray[np.int64],

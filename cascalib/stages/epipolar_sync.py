@@ -42,9 +42,14 @@ from numpy.typing import NDArray
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
-from cascalib.nanstats import joint_extent, nanmedian_last
+from cascalib.nanstats import joint_extent
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import Association, associate, interpolate_views
+from cascalib.stages.association import (
+    Association,
+    associate,
+    interpolate_views,
+    person_distances,
+)
 from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.single_view_solver import hartley_scale
@@ -342,7 +347,7 @@ def _search(pair: _PairData, window: float, n_samples: int, huber_px: float,
     for shift in shifts:
         cand = interpolate_views(pair.keypoints, pair.links,
                                  pair.frames - shift / pair.cam_b.time_rate)
-        dist = np.nan_to_num(nanmedian_last(norm_xy(cand - pair.base[:, None])), nan=np.inf)
+        dist = person_distances(cand, pair.base)
         p = np.argmin(dist, axis=1)
         xb.append(cand[g, p])
         ok &= np.isfinite(xb[-1][..., 0]) & (dist[g, p] < pair.gate)[:, None]

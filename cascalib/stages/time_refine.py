@@ -35,12 +35,12 @@ from numpy.typing import NDArray
 
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
-from cascalib.nanstats import nanmedian_last
 from cascalib.stages.association import (
     Association,
     interpolate_slots,
     interpolate_views,
     linked_pairs,
+    person_distances,
 )
 from cascalib.stages.triangulation import huber_weight, triangulate
 
@@ -89,7 +89,7 @@ def _nearest_of(keypoints: NDArray[np.float64], links: NDArray[np.int64],
         slots = np.broadcast_to(np.arange(cand.shape[1]), cand.shape[:2])
     else:
         cand = interpolate_slots(keypoints, links, frames, slots)
-    dist = np.nan_to_num(nanmedian_last(norm_xy(cand - target[:, None])), nan=np.inf)
+    dist = person_distances(cand, target)
     t = np.arange(len(frames))
     i = np.argmin(dist, axis=1)
     return slots[t, i], cand[t, i], dist[t, i]
@@ -116,8 +116,7 @@ def _within_reach(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     """
     a, b = linked_pairs(keypoints, links, _cell(frames, keypoints.shape[0])[0])
     step = np.nan_to_num(norm_xy(b - a), nan=0.0).max(-1)  # (T, P): largest joint move
-    now = interpolate_views(keypoints, links, frames)
-    dist = np.nan_to_num(nanmedian_last(norm_xy(now - target[:, None])), nan=np.inf)
+    dist = person_distances(interpolate_views(keypoints, links, frames), target)
     near = dist - 0.5 * step < reach
     order = np.argsort(~near, axis=1, kind="stable")[:, :most]  # the persons in reach first
     slots = np.where(np.take_along_axis(near, order, 1), order, -1)
