@@ -88,6 +88,9 @@ class CalibrationResult:
                 "principal_point": cam.principal_point.tolist(),
                 "center_m": cam.center.tolist(), "time_offset": cam.time_offset,
                 "time_rate": cam.time_rate,
+                "time_offset_sd_frames": (q.sigma_time_offset_frames
+                                          if q and np.isfinite(q.sigma_time_offset_frames)
+                                          else None),
                 "verdict": q.verdict if q else None, "reason": q.reason if q else None,
                 "reprojection_median_px": q.reprojection_median_px if q else None,
             })

@@ -40,7 +40,11 @@ GLOSSARY = (
     ("position", "Camera centre in the world frame: x, y on the ground, z = height above the "
                  "ground (metres). The world's origin and heading are the reference camera's."),
     ("time offset / rate", "Frame k of the camera shows the scene at reference-camera frame "
-                           "rate * k + offset (reference camera: 0 and 1)."),
+                           "rate * k + offset (reference camera: 0 and 1). The offset's "
+                           "± is its 1-s.d. uncertainty (frames) from how well the "
+                           "people's motion over the recording agrees on it; for a camera "
+                           "that starts long before or after the reference it includes the "
+                           "rate's uncertainty carried to the camera's first frame."),
     ("reprojection median / p90", "Distance in pixels between each detected keypoint and the "
                                   "projection of its triangulated 3D joint: median and 90th "
                                   "percentile over the inliers."),
@@ -81,7 +85,10 @@ def _camera_table(result: CalibrationResult) -> str:
             f"{q.sigma_focal_px:.1f}" if q else "", f"{cam.K[0, 2]:.1f}, {cam.K[1, 2]:.1f}",
             ", ".join(f"{v:.3g}" for v in cam.dist), f"{c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}",
             f"{q.sigma_rotation_deg:.2f} / {100 * q.sigma_position_m:.1f}" if q else "",
-            f"{cam.time_offset:.2f}", f"{cam.time_rate:.5f}",
+            f"{cam.time_offset:.2f}" + (f" &plusmn; {q.sigma_time_offset_frames:.2f}"
+                                        if q and np.isfinite(q.sigma_time_offset_frames)
+                                        else ""),
+            f"{cam.time_rate:.5f}",
             f"{q.reprojection_median_px:.2f} / {q.reprojection_p90_px:.2f}" if q else "",
             f"{q.inlier_rate:.0%}" if q else "",
             f"<b class='{q.verdict}'>{q.verdict}</b><br><small>{html.escape(q.reason)}</small>"
@@ -160,5 +167,5 @@ def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
     parts += [f"<dt><b>{k}</b></dt><dd>{html.escape(v)}</dd>" for k, v in GLOSSARY]
     parts.append("</dl></body></html>")
     path = outdir / "report.html"
-    path.write_text("\n".join(parts))
+    path.write_text("\n".join(parts), encoding="utf-8")  # as its meta tag says
     return path

@@ -69,6 +69,22 @@ def test_estimated_principal_points_carry_a_split_half_uncertainty(result):
             assert q.sigma_rotation_deg >= pp_deg - 1e-9, q
 
 
+def test_time_offsets_carry_an_uncertainty_that_covers_their_error(result, scene):
+    ref = result.calibration.reference_camera
+    summary = {c["name"]: c for c in result.summary()["cameras"]}
+    for cam in result.calibration:
+        sd = result.refinement.quality[cam.name].sigma_time_offset_frames
+        assert summary[cam.name]["time_offset_sd_frames"] == sd
+        assert result.calibration.quality[cam.name]["sigma_time_offset_frames"] == sd
+        if cam.name == ref:
+            assert sd == 0.0
+            continue
+        # at least the calibrated floor, and far below a frame on this well-observed scene
+        assert 0.025 <= sd < 0.3, sd
+        error = abs(cam.time_offset - scene.truth[cam.name].time_offset)
+        assert error < 3 * sd, (cam.name, error, sd)
+
+
 def test_result_keeps_every_stage_and_poses(result, scene):
     assert set(result.single_view) == set(scene.truth.names)
     assert result.alignment.calibration.names == result.calibration.names
@@ -88,6 +104,10 @@ def test_save_writes_contract_files(result, tmp_path):
     back = load_calibration(tmp_path / "calibration.toml")
     np.testing.assert_allclose(back.cameras[1].R, result.calibration.cameras[1].R, atol=1e-9)
     assert (tmp_path / "report.html").stat().st_size > 10_000
+    page = (tmp_path / "report.html").read_text(encoding="utf-8")
+    sd = result.refinement.quality["cam1"].sigma_time_offset_frames
+    assert f"{result.calibration['cam1'].time_offset:.2f} &plusmn; {sd:.2f}" in page
+    assert all(np.isfinite(data["quality"][n]["sigma_time_offset_frames"]) for n in data["cameras"])
     assert "report" in written and (tmp_path / "poses" / "poses.npz").exists()
     assert list((tmp_path / "poses").glob("*.trc"))
 

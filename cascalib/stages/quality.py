@@ -48,6 +48,7 @@ class CameraQuality:
     verdict: str
     reason: str
     sigma_principal_point_px: float = float("nan")
+    sigma_time_offset_frames: float = float("nan")
 
     def to_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -119,7 +120,9 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
         Reprojection errors of all its associated observations (inf for points behind it).
     sigmas : dict
         Marginal 1-sigma ``focal`` (px), ``rotation`` (deg), ``position`` (m); optionally
-        ``principal_point`` (px, split-half standard error, not scaled), added to the rotation.
+        ``principal_point`` (px, split-half standard error, not scaled), added to the rotation,
+        and ``time_offset`` (1-sigma of the time offset in reference frames, already calibrated:
+        see ``RefineConfig.time_uncertainty_inflation``; not scaled).
     scale : float
         Factor on the sigmas (unit-weight sigma times the configured inflation).
     cfg : RefineConfig
@@ -138,6 +141,7 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
         q["rotation"] = float(np.hypot(q["rotation"], np.degrees(np.arctan(pp / camera.focal))))
     q["focal_rel"] = q["focal"] / camera.focal
     verdict, reason = _verdict(q, n, cfg)
+    sd_time = float(sigmas.get("time_offset", np.nan))
     return CameraQuality(camera.name, n, q["median"], q["p90"], q["inlier_rate"], q["focal"],
                          q["focal_rel"], q["rotation"], q["position"], camera.time_offset,
-                         verdict, reason, pp)
+                         verdict, reason, pp, sd_time)

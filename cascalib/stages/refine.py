@@ -478,7 +478,8 @@ def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
 def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                   joints: NDArray[np.int64], height: float, rng: np.random.Generator,
-                  anchor_rates: Collection[float] | None = None) -> list[Camera]:
+                  anchor_rates: Collection[float] | None = None,
+                  sd: NDArray[np.float64] | None = None) -> list[Camera]:
     """Sub-frame time offsets (and rates, ``cfg.time_rates``) of every non-reference camera,
     geometry fixed, re-associating with the new clocks between updates (``cfg.time_iterations``
     at most).
@@ -487,6 +488,8 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
     A kept update that moved no offset by ``cfg.time_settle_frames`` ends the updates.
     ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
+    ``sd`` (C,), if given, is filled with the standard error of each offset from the last
+    update's measurement (see :func:`~cascalib.stages.time_refine.refine_offsets`).
     """
     data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
     cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
@@ -495,7 +498,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
                              rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,
-                             rng=rng)
+                             rng=rng, sd=sd)
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
                  "kept" if new_cost < cost else "rejected")
@@ -584,13 +587,15 @@ class _Run:
     rng: np.random.Generator
     progress: _Progress
     solves: list[SolveInfo] = field(default_factory=list)
+    clock_sd: NDArray[np.float64] | None = None  # of the last clock update's offsets (frames)
 
     def clocks(self, cameras: list[Camera]) -> list[Camera]:
         """:func:`refine_clocks` of ``cameras`` (or them unchanged with ``refine_time`` off)."""
         if not self.cfg.refine_time:
             return cameras
+        self.clock_sd = np.full(len(cameras), np.nan)
         return refine_clocks(self.data, cameras, self.cfg, self.joints, self.height, self.rng,
-                             anchor_rates=self.anchor_rates)
+                             anchor_rates=self.anchor_rates, sd=self.clock_sd)
 
 
 @dataclass
@@ -792,6 +797,11 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     if cfg.time_final_update and (pp is not None or distortion):
         # the passes moved the geometry after the rounds' last clock update
         cameras = run.clocks(cameras)
+    if run.clock_sd is not None:  # the reference's clock is exact by definition
+        clock_sd = np.hypot(cfg.time_uncertainty_inflation * run.clock_sd,
+                            cfg.time_uncertainty_floor_frames)
+        clock_sd[data.reference] = 0.0
+        sigmas = [s | {"time_offset": float(v)} for s, v in zip(sigmas, clock_sd, strict=True)]
     final, points, err = reconstruct(data, cameras, cfg, height)
     prog.step()
     quality = _report(final, err, cameras, sigmas, cfg)

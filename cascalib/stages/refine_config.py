@@ -339,6 +339,21 @@ class RefineConfig(BaseModel):
         "tighter threshold flags good cameras.")
     max_sigma_position_m: float = Field(0.15, gt=0, description="Above: suspicious.")
     max_sigma_focal_rel: float = Field(0.03, gt=0, description="Above: suspicious.")
+    time_uncertainty_inflation: float = Field(
+        2.0, gt=0, description="The quality report's 1-sigma of a camera's time offset is "
+        "sqrt((this * se)^2 + time_uncertainty_floor_frames^2), se the standard error of the "
+        "last clock update's measurement (the scatter of its time blocks). Calibrated on the "
+        "84 cameras of bench_sync.py's 24 scenes after Stage V (|offset error| at frame 0, "
+        "median 0.027 frame): se alone covered 27 % of the errors within 1 sigma and 52 % "
+        "within 2; this model 70 % and 95 %, and 71 / 95 % and 69 / 95 % in the halves of "
+        "smaller and larger se (3 * se without a floor: 62 / 88 % and 79 / 98 %). Checked on "
+        "84 other cameras (24 simulated 40 s whole-cascade scenes, median error 0.021 frame): "
+        "74 % within 1 sigma, 90 % within 2, largest error 3.4 sigma. The se ranks the "
+        "cameras only loosely (Spearman 0.22 and 0.09 with the error): the floor, errors the "
+        "motion's scatter does not show (geometry, detector bias), is most of the sigma "
+        "(median 0.03-0.04 frame, largest 0.10-0.15).")
+    time_uncertainty_floor_frames: float = Field(
+        0.025, ge=0, description="See time_uncertainty_inflation (reference frames).")
     uncertainty_inflation: float = Field(
         3.0, gt=0, description="Factor on the marginal sigmas (after the a-posteriori variance "
         "factor): marginals reflect noise, not model bias (detector bias, body-model error); "

@@ -170,7 +170,8 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
                    NDArray[np.int64], *, search: float = 1.0, max_groups: int = 6000,
                    cap_px: float = 30.0, huber_px: float = 3.0, rates: bool = False,
                    rate_sd: float = 1e-4, anchor_rates: Sequence[float] | None = None,
-                   rng: np.random.Generator | None = None) -> list[Camera]:
+                   rng: np.random.Generator | None = None,
+                   sd: NDArray[np.float64] | None = None) -> list[Camera]:
     """Refine the time offset (and frame-rate ratio) of every non-reference camera.
 
     Parameters
@@ -203,11 +204,17 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     rate_sd : float
         Prior sd of the relative rate around ``anchor_rates`` (stage III's rates are good to
         about 1e-4). Where the people's motion determines the rate better (the scatter of time
-        blocks, see :func:`_block_rate_se`), the data outweigh it; over a short recording,
+        blocks, see :func:`_block_line`), the data outweigh it; over a short recording,
         whose ends a rate error hardly moves, the rate stays at the anchor.
     anchor_rates : sequence of float, optional
         The rates the prior is centred on, one per camera: stage III's, so that repeated
         updates cannot wander off them by noise; default the cameras' current rates.
+    sd : ndarray, shape (C,), optional
+        Filled with the standard error (reference frames) of each camera's new
+        ``time_offset`` from the scatter of time blocks (:func:`_block_line`; a rate held at
+        the anchor adds the prior's), NaN where not measured (the reference among them). The
+        offset is the clock at the camera's frame 0: for a camera that starts long before or
+        after the middle of the recording it extrapolates the rate.
 
     Returns
     -------
@@ -227,7 +234,8 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
 
     anchor = [c.time_rate for c in cameras] if anchor_rates is None else list(anchor_rates)
 
-    def measure(c: int) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    def measure(c: int
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
         # the rate term that brings the camera back to its anchor rate
         back = half * (anchor[c] / cameras[c].time_rate - 1.0)
         return _measure(keypoints[c], links[c], cameras, c, assoc, joints, search=search,
@@ -238,10 +246,11 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     others = [c for c in range(n_cams) if c != reference]
     # numpy releases the GIL in the sorts and products that dominate: cameras in parallel, one
     # thread each (with one per core, 3 cameras on 2 cores took two rounds: the last alone)
+    cov = np.full((n_cams, 2, 2), np.nan)
     with ThreadPoolExecutor(max_workers=max(len(others), 1)) as pool:
         for c, res in zip(others, pool.map(measure, others), strict=True):
             if res is not None:
-                measured[c], coupling[c] = res
+                measured[c], coupling[c], cov[c] = res
                 ok[c] = True
     step = _decouple(measured, coupling, ok)
     out = []
@@ -256,6 +265,13 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
                      cam.name, cam.time_offset, new.time_offset, cam.time_rate, new.time_rate)
             cam = new
         out.append(cam)
+    if sd is not None:
+        # offset = the clock at mid-recording + rho u at the camera's frame 0
+        a = np.array([(cam.time_offset - t_mid) / half for cam in cameras])
+        known = ok & np.isfinite(cov).all(axis=(1, 2))
+        cov[~known] = 0.0
+        var = cov[:, 0, 0] + a * a * cov[:, 1, 1] + 2 * a * cov[:, 0, 1]
+        sd[:] = np.where(known, np.sqrt(np.maximum(var, 0.0)), np.nan)
     return out
 
 
@@ -293,11 +309,12 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
              c: int, assoc: Association, joints: NDArray[np.int64], *, search: float,
              max_groups: int, cap_px: float, huber_px: float, centre: tuple[float, float],
              rate_prior: tuple[float, float], rng: np.random.Generator
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
     """Best clock change ``(delta, rho)`` of camera ``c`` against the others (see the module
     docstring; ``rate_prior`` is the prior mean and sd of ``rho`` in frames, and ``rho`` stays
-    0 when the sd is 0 or the motion does not span the recording), and the coupling blocks of
-    :func:`_decouple`'s row of camera ``c``."""
+    0 when the sd is 0 or the motion does not span the recording), the coupling blocks of
+    :func:`_decouple`'s row of camera ``c``, and the covariance (2, 2) of ``(delta, rho)``
+    (:func:`_block_line`; a rate held at the anchor is as uncertain as the prior says)."""
     rho_prior, rate_sd = rate_prior
     n_cams = len(cameras)
     others = [i for i in range(n_cams) if i != c]
@@ -424,15 +441,20 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         t1 = np.clip(t1 + np.clip(step, -0.5, 0.5), -search, search)
         if np.abs(t1 - t0).max() < 1e-3:
             break
+    # the clock's real uncertainty: the nominal one counts every joint as independent, while
+    # association slips and geometry errors that change as people move are correlated over
+    # seconds; the scatter of the offsets of time blocks about the fitted line shows them
+    kappa = float(np.clip(slope[0, 0] / hess[0, 0], 0.05, 1.0)) if hess[0, 0] > 0 else 1.0
+    cov = _block_line(grad_g, info, u[:, 0, 0], kappa)
     if free[1]:
-        # the rate's real uncertainty: the nominal one counts every joint as independent, while
-        # association slips and geometry errors that change as people move are correlated over
-        # seconds; the scatter of the offsets of time blocks about the fitted line shows them.
-        # The rate is weighed against the anchor's (prior sd rate_sd) by it
-        kappa = float(np.clip(slope[0, 0] / hess[0, 0], 0.05, 1.0)) if hess[0, 0] > 0 else 1.0
-        se = _block_rate_se(grad_g, info, u[:, 0, 0], kappa)
+        # the rate is weighed against the anchor's (prior sd rate_sd) by it
+        se = float(np.sqrt(max(cov[1, 1], 0.0)))
         shrink = rate_sd**2 / (rate_sd**2 + se**2)
         t1[1] = rho_prior + shrink * (t1[1] - rho_prior)
+        cov = (cov * np.array([[1.0, shrink], [shrink, shrink]])  # the shrunk estimate's
+               if np.isfinite(cov).all() else np.full((2, 2), np.nan))
+    else:  # the rate stays at the anchor, uncertain by the prior
+        cov = np.diag([cov[0, 0], rate_sd**2])
     # how the others' clock errors reach this measurement (see _decouple): each group's
     # triangulation follows the others' clocks by their share of its observations, and the
     # measurement weighs the groups by their information
@@ -449,34 +471,36 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     else:  # the offset alone
         blocks[others, 0, 0] = moments[:, 0, 0] / max(hess[0, 0], 1e-12)
         t1[1] = 0.0
-    return t1, blocks
+    return t1, blocks, cov
 
 
-def _block_rate_se(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.float64],
-                   kappa: float, n_blocks: int = 8) -> float:
-    """Standard error (frames over half the recording) of the rate term from the scatter of
-    time blocks.
+def _block_line(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.float64],
+                kappa: float, n_blocks: int = 8) -> NDArray[np.float64]:
+    """Covariance (2, 2) of the clock change ``(delta, rho)`` (frames; ``rho`` over half the
+    recording) from the scatter of time blocks.
 
     Each of ``n_blocks`` blocks of the recording (by ``u``) gets the offset its own groups ask
     for, ``-sum jr / (kappa sum jj)`` (``kappa``: the secant's share of the Gauss-Newton
-    curvature, which the Huber weights overstate); a weighted line through them has the rate as
-    its slope, and the blocks' scatter about it gives the slope's standard error. Infinite with
-    fewer than four blocks that carry information.
+    curvature, which the Huber weights overstate); a weighted line through them has the offset
+    at mid-recording as its intercept and the rate as its slope, and the blocks' scatter about
+    it gives their covariance: association slips and geometry errors that change as people move
+    are correlated over seconds, which the nominal information (every joint independent) does
+    not see. Infinite with fewer than four blocks that carry information.
     """
+    inf = np.full((2, 2), np.inf)
     b = np.clip(((u + 1.0) * 0.5 * n_blocks).astype(int), 0, n_blocks - 1)
     g = np.bincount(b, jr, n_blocks)
     h = np.bincount(b, jj, n_blocks)
     hu = np.bincount(b, jj * u, n_blocks)
     keep = h > 0.02 * h.sum()
     if keep.sum() < 4:
-        return float("inf")
+        return inf
     d, ub, w = -g[keep] / (kappa * h[keep]), hu[keep] / h[keep], h[keep] / h[keep].mean()
     A = np.stack([np.ones_like(ub), ub], axis=1) * np.sqrt(w)[:, None]
     coef, *_ = np.linalg.lstsq(A, d * np.sqrt(w), rcond=None)
     resid = d * np.sqrt(w) - A @ coef
     sigma2 = float(resid @ resid) / (keep.sum() - 2)
     try:
-        cov = sigma2 * np.linalg.inv(A.T @ A)
+        return sigma2 * np.linalg.inv(A.T @ A)
     except np.linalg.LinAlgError:
-        return float("inf")
-    return float(np.sqrt(max(cov[1, 1], 0.0)))
+        return inf

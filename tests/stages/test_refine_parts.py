@@ -510,3 +510,26 @@ def test_reassociation_after_the_principal_point_pass_keeps_its_held_out_frames_
     assert at_seen.size > 0
     assert set(sel) | set(chosen) | set(at_seen) == set(fitted)
     assert fitted.size < assoc.n_groups  # something is left to hold out
+
+
+def test_clock_search_reports_its_uncertainty():
+    """The offsets' standard errors (scatter of time blocks) grow with the detection noise
+    and cover the actual errors; the reference camera has none."""
+    cfg = RefineConfig()
+    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
+    sds, errs = {}, {}
+    for noise in (1.0, 6.0):
+        sc = make_scene(n_frames=200, n_persons=6, noise_px=noise, offsets=(0, 0.3, -0.4, 0.2),
+                        seed=0)
+        data = _prepare(sc.tracks, sc.truth)
+        cams = list(sc.truth)
+        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
+                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
+        sd = np.zeros(len(cams))
+        out = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0, sd=sd)
+        assert np.isnan(sd[0]) and np.all(np.isfinite(sd[1:]) & (sd[1:] > 0)), sd
+        sds[noise] = sd[1:]
+        errs[noise] = np.array([abs(c.time_offset - t.time_offset)
+                                for c, t in zip(out[1:], sc.truth.cameras[1:], strict=True)])
+    assert np.median(sds[6.0]) > 2 * np.median(sds[1.0]), sds
+    assert np.all(errs[6.0] < 4 * sds[6.0]), (errs, sds)
