@@ -211,8 +211,8 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
         updates cannot wander off them by noise; default the cameras' current rates.
     sd : ndarray, shape (C,), optional
         Filled with the standard error (reference frames) of each camera's new
-        ``time_offset`` from the scatter of time blocks (:func:`_block_line`; a rate held at
-        the anchor adds the prior's), NaN where not measured (the reference among them). The
+        ``time_offset`` from the scatter of time blocks (:func:`_block_line`; a rate the data
+        do not determine adds the prior's), NaN where not measured (the reference among them). The
         offset is the clock at the camera's frame 0: for a camera that starts long before or
         after the middle of the recording it extrapolates the rate.
 
@@ -314,7 +314,8 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     docstring; ``rate_prior`` is the prior mean and sd of ``rho`` in frames, and ``rho`` stays
     0 when the sd is 0 or the motion does not span the recording), the coupling blocks of
     :func:`_decouple`'s row of camera ``c``, and the covariance (2, 2) of ``(delta, rho)``
-    (:func:`_block_line`; a rate held at the anchor is as uncertain as the prior says)."""
+    (:func:`_block_line`; a rate the data do not determine is as uncertain as the prior
+    says)."""
     rho_prior, rate_sd = rate_prior
     n_cams = len(cameras)
     others = [i for i in range(n_cams) if i != c]
@@ -453,7 +454,8 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         t1[1] = rho_prior + shrink * (t1[1] - rho_prior)
         cov = (cov * np.array([[1.0, shrink], [shrink, shrink]])  # the shrunk estimate's
                if np.isfinite(cov).all() else np.full((2, 2), np.nan))
-    else:  # the rate stays at the anchor, uncertain by the prior
+    else:  # the rate is kept as it is (stage III's, or an earlier update's), as uncertain as
+        # the prior says (0 when the caller keeps stage III's rates: rates=False)
         cov = np.diag([cov[0, 0], rate_sd**2])
     # how the others' clock errors reach this measurement (see _decouple): each group's
     # triangulation follows the others' clocks by their share of its observations, and the
