@@ -642,14 +642,17 @@ def _solve_rounds(run: _Run, cameras: list[Camera], *, least: int, most: int,
         cameras, _, info, graph, values = solve(prob, cfg)
         run.solves.append(info)
         run.progress.step()
-        cameras = run.clocks(cameras)  # after the last round too: the final association uses it
-        run.progress.step()
         r += 1
         moved_deg, moved_focal = camera_change(before, cameras)
         log.info("round %d moved the cameras by up to %.3f deg, focal %.2f %%", r, moved_deg,
                  100 * moved_focal)
-        if r >= most or (r >= least and moved_deg <= cfg.round_tolerance_deg
-                         and moved_focal <= cfg.round_tolerance_focal):
+        last = r >= most or (r >= least and moved_deg <= cfg.round_tolerance_deg
+                             and moved_focal <= cfg.round_tolerance_focal)
+        if last or cfg.time_each_round:
+            # after the last round too: the passes and the final association use them
+            cameras = run.clocks(cameras)
+        run.progress.step()
+        if last:
             break
         run.progress.total += 3 * (r >= least)  # one more round than planned
     if cfg.use_bones:  # for the intrinsics passes (same association; clocks do not enter)
