@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from cascalib.blas import one_blas_thread
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import EstimationFailed, InputError
@@ -542,6 +543,7 @@ def _place(cam: Camera, T: Similarity2D) -> Camera:
     return cam.with_(R=R, t=-R @ center)
 
 
+@one_blas_thread
 def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                   config: AlignConfig | None = None, *, reference: str | int | None = None,
                   rng: np.random.Generator | int | None = None,

@@ -28,6 +28,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from cascalib.blas import one_blas_thread
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError, RefinementFailed
@@ -706,6 +707,7 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
+@one_blas_thread
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
            progress: Callable[[float], None] | None = None,

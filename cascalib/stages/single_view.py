@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from cascalib.blas import one_blas_thread
 from cascalib.camera import Camera
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.stages.single_view_fit import SingleViewFit, fit_observations
@@ -179,6 +180,7 @@ class SingleViewConfig(BaseModel):
                     "image line.")
 
 
+@one_blas_thread
 def calibrate_single_view(tracks: Tracks, config: SingleViewConfig | None = None, *,
                           height: float | Mapping[int, float] | Sequence[float] | None = None,
                           rng: np.random.Generator | int | None = None,
