@@ -87,7 +87,12 @@ class RefineResult:
     association : Association
         The final cross-view association.
     solves : list of SolveInfo
-        Error before/after and iterations of every solve.
+        One per step, in order: each round, the principal-point pass (as its update left it)
+        and the distortion pass when they are kept. Each is the last Levenberg-Marquardt run
+        of that step's graduated solve (error before / after, iterations, seconds of that run
+        alone); earlier graduated stages, a pass its update replaced and the split-half check
+        of the principal point are not listed, so their seconds sum to less than the time
+        spent in gtsam.
     distortion : bool
         Whether the final cameras carry an estimated principal point and distortion.
     n_selected : int
