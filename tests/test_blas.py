@@ -26,20 +26,21 @@ class _Seen(Exception):
     """Raised by a stage's first inner step with the BLAS threads it saw."""
 
 
-@pytest.mark.parametrize(("module", "stage", "inner"), [
-    (single_view, "calibrate_single_view", "_upright"),
-    (align, "align_cameras", "_check_inputs"),
-    (refine, "refine", "prepare"),
+_TRACKS = type("T", (), {"require_image_size": lambda self: (640, 480)})()
+
+
+@pytest.mark.parametrize(("module", "stage", "inner", "args"), [
+    (single_view, "calibrate_single_view", "_upright", (_TRACKS,)),
+    (align, "align_cameras", "_check_inputs", ([], [])),
+    (refine, "refine", "prepare", ([], None)),
 ])
 def test_each_stage_computes_with_one_blas_thread(monkeypatch: pytest.MonkeyPatch, module: object,
-                                                  stage: str, inner: str) -> None:
+                                                  stage: str, inner: str,
+                                                  args: tuple[object, ...]) -> None:
     def spy(*args: object, **kwargs: object) -> None:
         raise _Seen(_blas_threads())
 
     monkeypatch.setattr(module, inner, spy)
-    tracks = type("T", (), {"require_image_size": lambda self: (640, 480)})()
-    args = {"calibrate_single_view": (tracks,), "align_cameras": ([], []),
-            "refine": ([], None)}[stage]
     with threadpool_limits(limits=2, user_api="blas"), pytest.raises(_Seen) as seen:
         getattr(module, stage)(*args)
     threads = seen.value.args[0]
