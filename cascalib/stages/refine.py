@@ -270,11 +270,13 @@ def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray
     return cam.with_(K=K, dist=np.zeros(5)), xy * f + cam.K[:2, 2]
 
 
-def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noqa: ANN201
+def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa: ANN201
+          method: str = "levenberg-marquardt"):
     """Graduated solve: from a poor start the noise level is the spread of the residuals.
 
     Each stage solves with ``prob.sigma_px``, then lowers it to the spread of the new residuals
-    (never below ``cfg.sigma_px``) and solves again from the result.
+    (never below ``cfg.sigma_px``) and solves again from the result, by ``method`` (see
+    :func:`~cascalib.stages.refine_graph.optimize`).
 
     Returns
     -------
@@ -284,7 +286,7 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4):  # noq
     values = initial_values(prob)
     for _ in range(max_stages):
         graph = build_graph(prob, cfg)
-        values, info = optimize(graph, values, cfg)
+        values, info = optimize(graph, values, cfg, method=method)
         cameras, points = unpack(values, prob)
         if prob.sigma_px <= cfg.sigma_px:
             break
@@ -370,7 +372,8 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
     """
     prob = _refined_problem(assoc, sel, cameras, cfg, kw, model)
     try:
-        res = solve(prob, _pass_config(cfg, model))
+        res = solve(prob, _pass_config(cfg, model),
+                    method=cfg.pass_solver if model == "s2" else "levenberg-marquardt")
     except RefinementFailed as exc:
         log.warning("%s pass failed, keeping the previous cameras: %s", model, exc)
         return None
@@ -410,7 +413,7 @@ def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tu
         cut = replace(cut, velocity=ground_velocity(cut))
         prob = _refined_problem(cut, sel, res[0], cfg, kw | {"targets": targets}, "s2")
         try:
-            res = solve(prob, solve_cfg) + (prob,)
+            res = solve(prob, solve_cfg, method=cfg.pass_solver) + (prob,)
         except RefinementFailed as exc:
             log.warning("principal-point update failed, keeping the previous solve: %s", exc)
             break
@@ -442,7 +445,8 @@ def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: 
     for part in (order[t <= np.median(t)], order[t > np.median(t)]):
         prob = _refined_problem(assoc, np.sort(part), cameras, cfg, kw, "s2")
         try:
-            cams = solve(prob, _iterations(cfg, cfg.spread_iterations))[0]
+            cams = solve(prob, _iterations(cfg, cfg.spread_iterations),
+                         method=cfg.pass_solver)[0]
         except RefinementFailed as exc:
             log.info("split-half principal point unavailable: %s", exc)
             return None

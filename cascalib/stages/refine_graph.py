@@ -355,30 +355,58 @@ def _points_first(values: gtsam.Values) -> gtsam.Ordering:
 
 
 def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig,
-               schur: bool) -> gtsam.NonlinearOptimizer:
-    """LM; with ``schur``, eliminating the points first, else in gtsam's COLAMD ordering.
+               schur: bool, method: str = "levenberg-marquardt") -> gtsam.NonlinearOptimizer:
+    """LM or Gauss-Newton (``method`` "gauss-newton"); with ``schur``, eliminating the points
+    first, else in gtsam's COLAMD ordering.
 
     Measured on the principal-point pass (4 x 3000 x 5, 1200 person-frames, 117k factors, three
     iterations): points first 0.03 s to set up and 1.1 s to solve, gtsam's
     SfmLevenbergMarquardtOptimizer (Schur mode) 0.24 + 1.8 s, COLAMD 2.5 s for the ordering
     alone; the same solution (errors equal to 1e-12).
     """
-    params = gtsam.LevenbergMarquardtParams()
+    if method == "gauss-newton":
+        params = gtsam.GaussNewtonParams()
+    else:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setlambdaLowerBound(cfg.lambda_lower_bound)
     params.setMaxIterations(cfg.max_iterations)
     params.setRelativeErrorTol(cfg.relative_tolerance)
-    params.setlambdaLowerBound(cfg.lambda_lower_bound)
     if schur:
         params.setOrdering(_points_first(values))
+    if method == "gauss-newton":
+        return gtsam.GaussNewtonOptimizer(graph, values, params)
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
 
 
-def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig
+def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                         cfg: RefineConfig) -> tuple[gtsam.Values, int]:
+    """LM; a points-first run that raises is repeated in COLAMD ordering."""
+    try:
+        opt = _optimizer(graph, values, cfg, cfg.schur)
+        result = opt.optimize()
+    except RuntimeError as exc:
+        if not cfg.schur:
+            raise
+        log.warning("points-first solve failed (%s), solving in COLAMD ordering", exc or
+                    "no message")
+        opt = _optimizer(graph, values, cfg, False)
+        result = opt.optimize()
+    return result, opt.iterations()
+
+
+def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig, *,
+             method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt"
              ) -> tuple[gtsam.Values, SolveInfo]:
-    """Levenberg-Marquardt (eliminating the points first when ``cfg.schur``).
+    """Levenberg-Marquardt, or Gauss-Newton (eliminating the points first when ``cfg.schur``).
 
     Should the points-first solve raise a ``RuntimeError`` (gtsam's Schur-mode optimiser once
     stopped with an empty one on a simulated phone rig with known intrinsics, where COLAMD
     went on), it is repeated in COLAMD ordering.
+
+    Gauss-Newton ("gauss-newton", for starts already near the solution) takes every step
+    undamped: one linear solve per iteration, where LM also builds a damped copy of the linear
+    system and may try several dampings. If it fails or its steps do not lower the error,
+    Levenberg-Marquardt solves from ``values`` instead.
 
     Raises
     ------
@@ -387,21 +415,23 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     """
     t0 = time.perf_counter()
     before = graph.error(values)
-    try:
+    result, after = None, np.inf
+    if method == "gauss-newton":
         try:
-            opt = _optimizer(graph, values, cfg, cfg.schur)
-            result = opt.optimize()
+            opt = _optimizer(graph, values, cfg, cfg.schur, method)
+            result, iterations = opt.optimize(), opt.iterations()
+            after = graph.error(result)
         except RuntimeError as exc:
-            if not cfg.schur:
-                raise
-            log.warning("points-first solve failed (%s), solving in COLAMD ordering", exc or
-                        "no message")
-            opt = _optimizer(graph, values, cfg, False)
-            result = opt.optimize()
-        iterations = opt.iterations()
-    except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and friends
-        raise RefinementFailed(f"bundle adjustment failed: {exc}") from exc
-    after = graph.error(result)
+            log.info("Gauss-Newton failed (%s)", str(exc).strip().split("\n")[0] or "no message")
+        if not after < before:
+            log.info("Gauss-Newton did not lower the error: Levenberg-Marquardt instead")
+            result = None
+    if result is None:
+        try:
+            result, iterations = _levenberg_marquardt(graph, values, cfg)
+        except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and friends
+            raise RefinementFailed(f"bundle adjustment failed: {exc}") from exc
+        after = graph.error(result)
     if not np.isfinite(after) or after > before * (1 + 1e-9):
         raise RefinementFailed(f"bundle adjustment diverged (error {before:.4g} -> {after:.4g})")
     log.info("bundle adjustment: error %.4g -> %.4g in %d iterations (%d factors)", before,
