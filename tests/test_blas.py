@@ -7,7 +7,7 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from cascalib.blas import one_blas_thread
-from cascalib.stages import align, refine, single_view
+from cascalib.stages import align, reconstruct, refine, single_view
 
 
 def _blas_threads() -> list[int]:
@@ -33,6 +33,7 @@ _TRACKS = type("T", (), {"require_image_size": lambda self: (640, 480)})()
     (single_view, "calibrate_single_view", "_upright", (_TRACKS,)),
     (align, "align_cameras", "_check_inputs", ([], [])),
     (refine, "refine", "prepare", ([], None)),
+    (reconstruct, "triangulate_poses", "match_calibration", ([], None)),
 ])
 def test_each_stage_computes_with_one_blas_thread(monkeypatch: pytest.MonkeyPatch, module: object,
                                                   stage: str, inner: str,

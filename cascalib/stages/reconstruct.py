@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from cascalib.blas import one_blas_thread
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import InputError
@@ -222,6 +223,7 @@ def match_calibration(tracks: list[Tracks], calibration: Calibration) -> Calibra
     return calibration
 
 
+@one_blas_thread
 def triangulate_poses(tracks: list[Tracks], calibration: Calibration, *, height: float = 1.70,
                       config: RefineConfig | None = None) -> Poses3D:
     """3D poses of every reference frame from a calibration (a new recording of the same rig).
