@@ -53,6 +53,7 @@ from cascalib.stages.refine_config import DEFAULT_JOINTS, HEAD_HEIGHT_FRACTIONS,
 from cascalib.stages.refine_graph import (
     GraphProblem,
     SolveInfo,
+    Solver,
     build_graph,
     initial_values,
     marginal_sigmas,
@@ -271,7 +272,7 @@ def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray
 
 
 def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa: ANN201
-          method: str = "levenberg-marquardt"):
+          method: Solver = "levenberg-marquardt"):
     """Graduated solve: from a poor start the noise level is the spread of the residuals.
 
     Each stage solves with ``prob.sigma_px``, then lowers it to the spread of the new residuals

@@ -347,6 +347,10 @@ class SolveInfo:
     seconds: float
 
 
+#: Nonlinear solvers of :func:`optimize`.
+Solver = Literal["levenberg-marquardt", "gauss-newton"]
+
+
 def _points_first(values: gtsam.Values) -> gtsam.Ordering:
     """Elimination ordering: every 3D point, then the cameras (the Schur complement)."""
     keys = np.array(values.keys(), dtype=np.uint64)
@@ -355,7 +359,7 @@ def _points_first(values: gtsam.Values) -> gtsam.Ordering:
 
 
 def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig,
-               schur: bool, method: str = "levenberg-marquardt") -> gtsam.NonlinearOptimizer:
+               schur: bool, method: Solver = "levenberg-marquardt") -> gtsam.NonlinearOptimizer:
     """LM or Gauss-Newton (``method`` "gauss-newton"); with ``schur``, eliminating the points
     first, else in gtsam's COLAMD ordering.
 
@@ -395,8 +399,7 @@ def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
 
 
 def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig, *,
-             method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt"
-             ) -> tuple[gtsam.Values, SolveInfo]:
+             method: Solver = "levenberg-marquardt") -> tuple[gtsam.Values, SolveInfo]:
     """Levenberg-Marquardt, or Gauss-Newton (eliminating the points first when ``cfg.schur``).
 
     Should the points-first solve raise a ``RuntimeError`` (gtsam's Schur-mode optimiser once
@@ -422,10 +425,13 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
             result, iterations = opt.optimize(), opt.iterations()
             after = graph.error(result)
         except RuntimeError as exc:
-            log.info("Gauss-Newton failed (%s)", str(exc).strip().split("\n")[0] or "no message")
-        if not after < before:
-            log.info("Gauss-Newton did not lower the error: Levenberg-Marquardt instead")
+            log.info("Gauss-Newton failed (%s): Levenberg-Marquardt instead",
+                     str(exc).strip().split("\n")[0] or "no message")
             result = None
+        else:
+            if not after < before:
+                log.info("Gauss-Newton did not lower the error: Levenberg-Marquardt instead")
+                result = None
     if result is None:
         try:
             result, iterations = _levenberg_marquardt(graph, values, cfg)
