@@ -40,6 +40,21 @@ BONE_CLASSES: tuple[tuple[tuple[str, str], ...], ...] = (
 )
 
 
+#: The least per-group size noise (relative) that the cut and join tests count on. A size step
+#: must then be at least 2 % to cut a track (``threshold`` 6 standard errors of the medians of
+#: two 15-group windows): adult heights differ by about 4 % (sd), so two people are seldom
+#: closer, while geometry that is still off makes a person's size drift along the floor by about
+#: 1 % between such windows (the largest step of each track, median: 1.2 % on a rig 2 deg off).
+#: Without a floor, precise detections made every such drift a "jump": on simulated
+#: detections with 0.01 px noise (terrace seed 1, from the true rig with the principal points
+#: at the image centre) the sizes' noise was 0.04 %, tracks of 5 persons were cut into 51-65
+#: pieces, and their bone targets, each from a few seconds of one place, held the principal-point
+#: pass near its start: relative rotations 0.95 deg, against 0.009 deg with 0.2 px noise (5
+#: tracks, sizes' noise 0.2 %). With the simulator's usual detector the sizes' noise is 1.6-4 %,
+#: above the floor.
+MIN_SIZE_SD = 0.0075
+
+
 def bone_pairs(names: tuple[str, ...]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Bone joint pairs (indices into ``names``) and their class, for bones fully in ``names``."""
     pos = {n: i for i, n in enumerate(names)}
@@ -63,10 +78,10 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
     bone's class over all groups. Along each track (in time order) the median size of the
     ``window`` groups after each point is compared with that of the ``window`` before; the
     track is cut at each local maximum of the step that exceeds ``threshold`` standard errors
-    (noise from the differences of consecutive sizes). Only a jump within a few frames counts:
-    a camera's residual error makes a person's size drift slowly along the floor, and cutting
-    there would tie the bone lengths only locally, which keeps that error instead of
-    correcting it.
+    (noise from the differences of consecutive sizes, at least :data:`MIN_SIZE_SD`). Only a jump
+    within a few frames counts: a camera's residual error makes a person's size drift slowly
+    along the floor, and cutting there would tie the bone lengths only locally, which keeps that
+    error instead of correcting it.
 
     Parameters
     ----------
@@ -104,9 +119,7 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
         if n < 2 * window:
             continue
         s = size[idx]
-        sd = median_abs_deviation(np.diff(s), scale="normal") / np.sqrt(2)
-        if not sd > 0:
-            continue
+        sd = max(median_abs_deviation(np.diff(s), scale="normal") / np.sqrt(2), MIN_SIZE_SD)
         win = np.lib.stride_tricks.sliding_window_view(s, window)  # win[j] = s[j:j + window]
         med = np.median(win, axis=1)
         i = np.arange(window, n - window + 1)  # cut before point i
@@ -146,7 +159,7 @@ def _join_by_size(tracks: NDArray[np.int64], times: NDArray[np.float64], size: N
         seen = np.zeros(t_all.size, dtype=bool)
         seen[np.searchsorted(t_all, times[tracks == ids[j]])] = True
         med = float(np.median(v))
-        se = max(float(median_abs_deviation(v, scale="normal")), 1e-6) / np.sqrt(v.size)
+        se = max(float(median_abs_deviation(v, scale="normal")), MIN_SIZE_SD) / np.sqrt(v.size)
         if labels:
             z = np.abs(np.array(p_size) - med) / np.hypot(np.array(p_se), se)
             for q in np.argsort(z):
