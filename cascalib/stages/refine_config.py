@@ -266,8 +266,9 @@ class RefineConfig(BaseModel):
         "(k1 -0.04 .. -0.11), 15 % on the security cameras.")
     principal_point: Literal["auto", "never", "always"] = Field(
         "auto", description="Pass with the principal point free (Cal3_S2, fx = fy): 'auto' "
-        "keeps it unless it raises the held-out reprojection error. A principal point 2 % off "
-        "the centre tilts a wide-angle camera by about a degree if it is held fixed.")
+        "keeps it unless it raises the held-out reprojection error (if it does, it is judged "
+        "again after its updates, principal_point_updates). A principal point 2 % off the centre "
+        "tilts a wide-angle camera by about a degree if it is held fixed.")
     principal_point_iterations: int = Field(
         1, ge=1, description="Levenberg-Marquardt iterations of the principal-point pass. "
         "Measured (terrace, 1200 person-frames): the principal points move by < 0.1 px after "
