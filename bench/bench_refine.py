@@ -49,7 +49,7 @@ def perturb(calib: Calibration, rng: np.random.Generator, *, rot_deg: float = 3.
         K = cam.K.copy()
         K[0, 0] *= 1 + focal_rel * rng.choice([-1, 1])
         K[1, 1] = K[0, 0]
-        K[:2, 2] = [(cam.image_size[0] - 1) / 2, (cam.image_size[1] - 1) / 2]
+        K[:2, 2] = cam.image_centre
         off = cam.time_offset + (0.0 if i == 0 else offset * rng.choice([-1, 1]))
         cams.append(cam.with_(R=R, t=-R @ center, K=K, dist=np.zeros(5), time_offset=off))
     return Calibration(cams, reference_camera=calib.reference_camera)
@@ -199,12 +199,8 @@ def table_principal_point(seeds: list[int]) -> None:
             "duration_s": 40.0, "detector": DetectorConfig.clean(),
             "timing": PRESETS["terrace"].timing.model_copy(update={"max_offset_s": 0.0})})
         scene = simulate(conf, seed=seed)
-        centred = []
-        for cam in scene.truth.cameras:
-            K = cam.K.copy()
-            K[:2, 2] = [(cam.image_size[0] - 1) / 2, (cam.image_size[1] - 1) / 2]
-            centred.append(cam.with_(K=K))
-        start = Calibration(centred, reference_camera=scene.truth.reference_camera)
+        start = Calibration([c.with_centred_principal_point() for c in scene.truth.cameras],
+                            reference_camera=scene.truth.reference_camera)
         cfg = RefineConfig(refine_time=False, use_bones=False, principal_point="always",
                            principal_point_sigma=1.0, distortion="never")
         for label, init, fixed in (("free", start, ()),

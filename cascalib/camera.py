@@ -123,6 +123,19 @@ class Camera:
         return self.K[:2, 2].copy()
 
     @property
+    def image_centre(self) -> NDArray[np.float64]:
+        """Centre of the image in pixels (pixel centres at integers): where stage I, which cannot
+        tell the principal point, puts it."""
+        w, h = self.image_size
+        return np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+
+    def with_centred_principal_point(self) -> Camera:
+        """A copy with the principal point at :attr:`image_centre`, the rest unchanged."""
+        K = self.K.copy()
+        K[:2, 2] = self.image_centre
+        return self.with_(K=K)
+
+    @property
     def center(self) -> NDArray[np.float64]:
         """Camera centre in world coordinates, ``-R.T @ t``."""
         return -self.R.T @ self.t

@@ -157,6 +157,21 @@ def test_backprojection_to_ground_and_behind_camera():
     np.testing.assert_allclose(cam.center, [4.0, -3.0, 2.5], atol=1e-12)
 
 
+def test_centred_principal_point_moves_only_the_principal_point():
+    cam = Camera.from_params("c", (640, 480), (510.0, 505.0), np.eye(3), [0.1, 0.2, 3.0],
+                             c=(331.0, 228.5), dist=[-0.1, 0.01, 0, 0, 0])
+    np.testing.assert_allclose(cam.image_centre, [319.5, 239.5])
+    centred = cam.with_centred_principal_point()
+    np.testing.assert_allclose(centred.principal_point, [319.5, 239.5])
+    assert (centred.fx, centred.fy) == (510.0, 505.0) and centred.K[0, 1] == 0.0
+    np.testing.assert_array_equal(centred.dist, cam.dist)
+    np.testing.assert_array_equal(centred.t, cam.t)
+    # a point on the optical axis images at the image centre
+    np.testing.assert_allclose(centred.project((centred.center + [0, 0, 5.0])[None])[0],
+                               [319.5, 239.5], atol=1e-9)
+    np.testing.assert_allclose(cam.principal_point, [331.0, 228.5])  # the original is unchanged
+
+
 def test_calibration_subset_rebases_the_clocks_without_the_reference():
     from cascalib.calibration import Calibration
 

@@ -295,8 +295,8 @@ def test_upright_torsos_settle_part_of_the_principal_point():
     for seed in range(3):
         scene = make_scene(n_frames=120, n_persons=3, noise_px=1.0, seed=seed,
                            principal_offset=0.03)
-        start = [c.with_(K=np.array([[c.focal, 0, (c.image_size[0] - 1) / 2],
-                                     [0, c.focal, (c.image_size[1] - 1) / 2], [0, 0, 1.0]]))
+        start = [c.with_(K=np.array([[c.focal, 0, c.image_centre[0]],
+                                     [0, c.focal, c.image_centre[1]], [0, 0, 1.0]]))
                  for c in scene.truth]
         assoc = _truth_association(scene, start, 40, stride=3)
         for sigma in total:

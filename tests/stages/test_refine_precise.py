@@ -35,12 +35,8 @@ def test_precise_detections_recover_the_principal_points(seed: int) -> None:
     scene = simulate(preset.model_copy(update={
         "duration_s": 40.0, "detector": precise,
         "timing": preset.timing.model_copy(update={"max_offset_s": 0.0})}), seed=seed)
-    centred = []
-    for cam in scene.truth.cameras:
-        K = cam.K.copy()
-        K[:2, 2] = [(cam.image_size[0] - 1) / 2, (cam.image_size[1] - 1) / 2]
-        centred.append(cam.with_(K=K))
-    start = Calibration(centred, reference_camera=scene.truth.reference_camera)
+    start = Calibration([c.with_centred_principal_point() for c in scene.truth.cameras],
+                        reference_camera=scene.truth.reference_camera)
     # the start really is off: principal points up to 32 px from the truth
     assert max(np.abs(a.K[:2, 2] - b.K[:2, 2]).max()
                for a, b in zip(start, scene.truth, strict=True)) > 15
