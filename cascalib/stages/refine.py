@@ -389,11 +389,13 @@ def _heldout_gain(assoc: Association, exclude: NDArray[np.int64], before: list[C
 
 def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                      cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
-                     mode: str, min_gain: float, fitted: NDArray[np.int64]):  # noqa: ANN202
+                     mode: str, min_gain: float = 0.0,
+                     fitted: NDArray[np.int64] | None = None):  # noqa: ANN202
     """A pass with more intrinsics free (with priors); kept if held-out frames agree.
 
     ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
-    person-frames (not in the graph) drops by at least ``min_gain`` (relative; may be negative).
+    person-frames (neither in the graph nor in ``fitted``, the person-frames earlier solves
+    saw) drops by at least ``min_gain`` (relative; may be negative).
     """
     prob = _refined_problem(assoc, sel, cameras, cfg, kw, model)
     try:
@@ -404,8 +406,8 @@ def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[C
         return None
     if mode == "always":
         return res + (prob,)
-    gain = _heldout_gain(assoc, np.union1d(sel, fitted), cameras, res[0], cfg, rng,
-                         f"{model} pass")
+    seen = sel if fitted is None else np.union1d(sel, fitted)
+    gain = _heldout_gain(assoc, seen, cameras, res[0], cfg, rng, f"{model} pass")
     return res + (prob,) if gain is not None and gain >= min_gain else None
 
 
@@ -709,7 +711,7 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
     updates = cfg.use_bones and cfg.principal_point_updates > 0
     min_gain = -0.005
     res = _intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, run.rng, model="s2",
-                           mode="always", min_gain=min_gain, fitted=fit.fitted)
+                           mode="always")  # judged here: a second look may follow the updates
     kept = True
     if res is not None and cfg.principal_point == "auto":
         gain = _heldout_gain(fit.assoc, np.union1d(chosen, fit.fitted), fit.cameras, res[0],
