@@ -369,17 +369,15 @@ def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Ref
     alone; the same solution (errors equal to 1e-12).
     """
     if method == "gauss-newton":
-        params = gtsam.GaussNewtonParams()
+        params, optimizer = gtsam.GaussNewtonParams(), gtsam.GaussNewtonOptimizer
     else:
-        params = gtsam.LevenbergMarquardtParams()
+        params, optimizer = gtsam.LevenbergMarquardtParams(), gtsam.LevenbergMarquardtOptimizer
         params.setlambdaLowerBound(cfg.lambda_lower_bound)
     params.setMaxIterations(cfg.max_iterations)
     params.setRelativeErrorTol(cfg.relative_tolerance)
     if schur:
         params.setOrdering(_points_first(values))
-    if method == "gauss-newton":
-        return gtsam.GaussNewtonOptimizer(graph, values, params)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    return optimizer(graph, values, params)
 
 
 def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
