@@ -330,7 +330,8 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     n_g, _, n_j = sub.shape[:3]
     uv = sub[..., :2].transpose(1, 0, 2, 3).reshape(len(others), -1, 2)
     conf = sub[..., 2].transpose(1, 0, 2).reshape(len(others), -1)
-    Xw, _ = triangulate([cameras[i] for i in others], uv, conf)
+    # workers=1: the cameras are measured in parallel already (refine_offsets)
+    Xw, _ = triangulate([cameras[i] for i in others], uv, conf, workers=1)
     proj = cameras[c].project(Xw).reshape(n_g, n_j, 2)
     times = assoc.times[idx]
     u = ((times - centre[0]) / centre[1])[:, None, None]  # (G, 1, 1), about -1 .. 1

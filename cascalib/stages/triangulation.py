@@ -10,6 +10,8 @@ squares with Huber weights on the pixel reprojection error then suppresses outli
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -17,6 +19,12 @@ from cascalib.camera import Camera, distort_normalized
 from cascalib.geometry import norm_xy
 
 __all__ = ["huber_weight", "reprojection_errors", "triangulate"]
+
+# Points per block of :func:`triangulate`. Measured on 380k points x 4 cameras (one BLAS
+# thread, 2 cores): one block 0.73-0.85 s, blocks of 10k 0.52 s (the dozen (C, N) temporaries of
+# a block stay in cache), the same blocks on two threads 0.34 s (numpy releases the GIL in the
+# elementwise work and the GEMM that dominate).
+BLOCK_POINTS = 16384
 
 
 def _normal_coefficients(P: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,8 +134,8 @@ def _project(cam: Camera, rows: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np.float64] | None
-                = None, *, huber_px: float = 4.0, n_iter: int = 3, min_views: int = 2
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                = None, *, huber_px: float = 4.0, n_iter: int = 3, min_views: int = 2,
+                workers: int = 2) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Triangulate N points seen by up to C cameras, robustly.
 
     Parameters
@@ -143,6 +151,9 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
         Reweighting iterations after the first linear solve.
     min_views : int
         Points seen by fewer views are NaN.
+    workers : int
+        Threads over blocks of :data:`BLOCK_POINTS` points (1: in this thread); the points are
+        independent, so the result does not depend on it.
 
     Returns
     -------
@@ -155,6 +166,30 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
     n_cams, n = uv.shape[:2]
     if n == 0:
         return np.zeros((0, 3)), np.zeros((n_cams, 0))
+    if conf is not None:
+        conf = np.asarray(conf, dtype=np.float64)
+    kw = dict(huber_px=huber_px, n_iter=n_iter, min_views=min_views)
+    if n <= BLOCK_POINTS:
+        return _triangulate_block(cameras, uv, conf, **kw)
+    blocks = [slice(i, i + BLOCK_POINTS) for i in range(0, n, BLOCK_POINTS)]
+
+    def one(b: slice) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return _triangulate_block(cameras, uv[:, b], None if conf is None else conf[:, b], **kw)
+
+    if workers > 1:
+        with ThreadPoolExecutor(max_workers=min(workers, len(blocks))) as pool:
+            parts = list(pool.map(one, blocks))
+    else:
+        parts = [one(b) for b in blocks]
+    return (np.concatenate([p[0] for p in parts]),
+            np.concatenate([p[1] for p in parts], axis=1))
+
+
+def _triangulate_block(cameras: list[Camera], uv: NDArray[np.float64],
+                       conf: NDArray[np.float64] | None, *, huber_px: float, n_iter: int,
+                       min_views: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`triangulate` of one block of points (``uv`` (C, N, 2), N >= 1)."""
+    n_cams, n = uv.shape[:2]
     seen = np.isfinite(uv[..., 0]) & np.isfinite(uv[..., 1])  # not .all(-1): a slow reduce
     c0 = np.ones((n_cams, n)) if conf is None else np.nan_to_num(np.asarray(conf, float))
     c0 = np.where(seen, np.clip(c0, 1e-3, None), 0.0)

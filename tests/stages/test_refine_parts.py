@@ -21,7 +21,7 @@ from cascalib.stages.reconstruct import views_at as _views
 from cascalib.stages.refine import camera_change, refine
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.time_refine import refine_offsets
-from cascalib.stages.triangulation import triangulate
+from cascalib.stages.triangulation import BLOCK_POINTS, triangulate
 
 
 def offset_errors(est, truth) -> np.ndarray:
@@ -49,6 +49,30 @@ def test_triangulation_exact_and_robust(scene):
     one = uv.copy()
     one[1:] = np.nan
     assert np.isnan(triangulate(cams, one)[0]).all()
+
+
+def test_triangulation_in_blocks_keeps_every_point_in_place(scene):
+    # more points than one block, each with its own outlier pattern and confidence: a block
+    # put back in the wrong place, or a confidence of another block, shows in the points
+    cams = list(scene.truth)
+    rng = np.random.default_rng(1)
+    n = 2 * BLOCK_POINTS + 777
+    X = scene.joints.reshape(-1, 3)[np.isfinite(scene.joints.reshape(-1, 3)).all(1)]
+    X = X[rng.integers(len(X), size=n)] + rng.normal(0, 0.3, (n, 3))
+    uv = np.stack([c.project(X) for c in cams]) + rng.normal(0, 0.5, (len(cams), n, 2))
+    uv[rng.random((len(cams), n)) < 0.2] = np.nan
+    uv[0, rng.random(n) < 0.05] += 60.0
+    conf = rng.uniform(0.2, 1.0, (len(cams), n))
+    X1, e1 = triangulate(cams, uv, conf, workers=1)
+    X2, e2 = triangulate(cams, uv, conf, workers=2)
+    np.testing.assert_array_equal(X1, X2)
+    np.testing.assert_array_equal(e1, e2)
+    for part in (slice(0, 500), slice(BLOCK_POINTS - 300, BLOCK_POINTS + 300), slice(n - 400, n)):
+        Xp, ep = triangulate(cams, uv[:, part], conf[:, part])
+        np.testing.assert_allclose(X2[part], Xp, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(e2[:, part], ep, rtol=0, atol=1e-6)
+    two = (np.isfinite(uv[..., 0]).sum(0) >= 2)
+    assert np.median(np.linalg.norm(X2[two] - X[two], axis=1)) < 0.02
 
 
 def test_interpolation_follows_the_time_convention(scene):
