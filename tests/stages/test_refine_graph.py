@@ -13,7 +13,6 @@ from cascalib.errors import RefinementFailed
 from cascalib.geometry import rotation_angle_deg, umeyama
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association
-from cascalib.stages.refine import _make_problem, solve
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.refine_graph import (
     _gauge_noise,
@@ -23,6 +22,7 @@ from cascalib.stages.refine_graph import (
     optimize,
     unpack,
 )
+from cascalib.stages.refine_problem import make_problem, solve
 
 
 def _truth_association(scene, cams, n: int, stride: int = 1) -> Association:
@@ -40,8 +40,8 @@ def _truth_association(scene, cams, n: int, stride: int = 1) -> Association:
 
 def _problem(scene, cams, cfg, n=20, **kw):
     assoc = _truth_association(scene, cams, n, stride=3)
-    return _make_problem(assoc, cams, cfg, height=float(scene.heights.mean()),
-                         n_persons=len(scene.heights), reference=0, **kw)
+    return make_problem(assoc, cams, cfg, height=float(scene.heights.mean()),
+                        n_persons=len(scene.heights), reference=0, **kw)
 
 
 def _rig_errors(est, truth) -> tuple[float, float, float]:
@@ -211,8 +211,8 @@ def test_robust_kernel_ignores_outliers():
     errs = {}
     for kernel, k in (("huber", 1.345), ("huber", 1e6)):  # k = 1e6: plain least squares
         cfg = RefineConfig(use_bones=False, robust=kernel, robust_k=k, sigma_px=0.5)
-        prob = _make_problem(assoc, list(start), cfg, height=float(scene.heights.mean()),
-                             n_persons=3, reference=0)
+        prob = make_problem(assoc, list(start), cfg, height=float(scene.heights.mean()),
+                            n_persons=3, reference=0)
         prob.sigma_px = 0.5
         values, _ = optimize(build_graph(prob, cfg), initial_values(prob), cfg)
         errs[k] = _rig_errors(unpack(values, prob)[0], list(scene.truth))
@@ -301,8 +301,8 @@ def test_upright_torsos_settle_part_of_the_principal_point():
         assoc = _truth_association(scene, start, 40, stride=3)
         for sigma in total:
             cfg = RefineConfig(upright_sigma_m=sigma, use_bones=False, max_iterations=10)
-            prob = _make_problem(assoc, start, cfg, height=float(scene.heights.mean()),
-                                 n_persons=3, reference=0, model="s2")
+            prob = make_problem(assoc, start, cfg, height=float(scene.heights.mean()),
+                                n_persons=3, reference=0, model="s2")
             prob.sigma_px = 1.0
             total[sigma] += _rig_errors(solve(prob, cfg)[0], list(scene.truth))[0]
     assert total[0.02] < 0.95 * total[0.0]
@@ -311,16 +311,17 @@ def test_upright_torsos_settle_part_of_the_principal_point():
 def test_principal_point_update_takes_targets_from_the_pass(scene):
     """An update re-solves the pass with bone targets triangulated with the pass's cameras, not
     the ones it was given."""
-    from cascalib.stages.refine import _settle_principal_points, _track_targets
+    from cascalib.stages.refine import _settle_principal_points
+    from cascalib.stages.refine_problem import track_targets
 
     cfg = RefineConfig(principal_point_updates=1)
     joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
     h = float(scene.heights.mean())
     assoc = _truth_association(scene, list(scene.truth), 20, stride=3)
-    assoc, fresh = _track_targets(assoc, list(scene.truth), cfg, joints, h)
+    assoc, fresh = track_targets(assoc, list(scene.truth), cfg, joints, h)
     stale = {tr: 1.1 * v for tr, v in fresh.items()}  # 10 % too long: from another rig
     kw = dict(height=h, n_persons=3, reference=0, targets=stale)
-    prob = _make_problem(assoc, list(scene.truth), cfg, model="s2", **kw)
+    prob = make_problem(assoc, list(scene.truth), cfg, model="s2", **kw)
     res = solve(prob, cfg) + (prob,)
     _, kw_new, res_new = _settle_principal_points(assoc, np.arange(assoc.n_groups), res, cfg, kw,
                                                   joints, h)

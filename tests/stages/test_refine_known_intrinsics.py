@@ -17,7 +17,8 @@ from cascalib.calibration import Calibration
 from cascalib.errors import InputError
 from cascalib.geometry import rotation_angle_deg
 from cascalib.simulate import PRESETS, simulate
-from cascalib.stages.refine import RefineConfig, ideal_pinhole, refine
+from cascalib.stages.refine import RefineConfig, refine
+from cascalib.stages.refine_problem import ideal_pinhole
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 from bench_refine import perturb  # noqa: E402

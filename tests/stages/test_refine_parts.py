@@ -403,7 +403,7 @@ def test_refine_end_to_end_small():
 
 def test_bone_targets_pool_left_right_per_track():
     from cascalib.stages.person_size import bone_pairs
-    from cascalib.stages.refine import bone_targets
+    from cascalib.stages.refine_problem import bone_targets
     names = ("left_hip", "left_knee", "right_hip", "right_knee")
     bones, classes = bone_pairs(names)
     assert len(bones) == 2 and classes[0] == classes[1]
