@@ -4,8 +4,9 @@ The paper (sec. "Joint Camera Refinement" and supplement "Bundle Adjustment - De
 ray-to-ray distances with gradient descent. Here the same terms -- multi-view agreement, left/right
 symmetry, feet on the ground, the height prior -- form a nonlinear least-squares problem in a GTSAM
 factor graph (key table and factors in :mod:`cascalib.stages.refine_graph`, one solve's problem
-in :mod:`cascalib.stages.refine_problem`), minimising the *reprojection* error with robust
-kernels and reporting marginal uncertainties.
+in :mod:`cascalib.stages.refine_problem`, the intrinsics passes and their checks in
+:mod:`cascalib.stages.refine_passes`), minimising the *reprojection* error with robust kernels
+and reporting marginal uncertainties.
 
 Cascade of one call to :func:`refine`::
 
@@ -52,17 +53,19 @@ from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.refine_graph import (
     GraphProblem,
     SolveInfo,
-    build_graph,
-    initial_values,
     marginal_sigmas,
+)
+from cascalib.stages.refine_passes import (
+    heldout_gain,
+    intrinsics_pass,
+    principal_point_spread,
+    rounds_size_graph,
+    settle_principal_points,
 )
 from cascalib.stages.refine_problem import (
     make_problem,
-    pass_config,
-    refined_problem,
     solve,
     track_targets,
-    with_iterations,
 )
 from cascalib.stages.time_refine import refine_offsets
 from cascalib.tracks import Tracks
@@ -117,13 +120,6 @@ class RefineResult:
     residuals: NDArray[np.float64] | None = None
 
 
-def _heldout_error(assoc: Association, idx: NDArray[np.int64], cameras: list[Camera],
-                   joints: NDArray[np.int64]) -> float:
-    _, err = triangulate_groups(assoc.subset(idx), cameras, joints)
-    e = err[np.isfinite(err)]
-    return float(np.median(e)) if e.size else float("inf")
-
-
 def _select(assoc: Association, sizes: list[tuple[int, int]], n: int,
             joints: NDArray[np.int64], cfg: RefineConfig) -> NDArray[np.int64]:
     """``n`` well-spread person-frames of ``assoc`` (:func:`select_groups` with the frame
@@ -141,125 +137,6 @@ def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[i
     if n == cfg.max_groups:
         return sel
     return _select(assoc, sizes, n, joints, cfg)
-
-
-def _rounds_size_graph(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
-                       cfg: RefineConfig, kw: dict, model: str
-                       ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, GraphProblem]:
-    """The graph of the rounds' person-frames ``sel`` at the final ``cameras``, for marginals.
-
-    ``uncertainty_inflation`` is calibrated on graphs of that size. A larger pass shrinks the
-    marginals by the square root of its size, while the principal point's error (its trade-off
-    with the rotation, settled by the priors more than by the images) falls far less.
-    """
-    prob = refined_problem(assoc, sel, cameras, cfg, kw, model)
-    return build_graph(prob, cfg), initial_values(prob), prob
-
-
-def _heldout_gain(assoc: Association, exclude: NDArray[np.int64], before: list[Camera],
-                  after: list[Camera], cfg: RefineConfig, rng: np.random.Generator, label: str
-                  ) -> float | None:
-    """Relative drop of the median reprojection error of held-out person-frames from cameras
-    ``before`` to ``after`` (negative: it rose); None if nothing can be held out.
-
-    Held out are person-frames of ``assoc`` that no solve behind either rig saw (``exclude``),
-    or the rigs would be judged on their own data; and only those the selection could have
-    chosen: a large pass leaves mostly the least consistent groups, on which a lens model's
-    gain drowned (phones seed 0: 1.7 % there, 6.1 % on usable groups).
-    """
-    joints = np.array([CANONICAL_INDEX[n] for n in cfg.joints])
-    rest = np.setdiff1d(usable_groups(assoc, joints), exclude)
-    if rest.size == 0:
-        return None
-    held = np.sort(rng.choice(rest, min(rest.size, 1500), replace=False))
-    e1 = _heldout_error(assoc, held, before, joints)
-    e2 = _heldout_error(assoc, held, after, joints)
-    gain = 1 - e2 / e1 if e1 > 0 else 0.0
-    log.info("%s: held-out median reprojection %.3f -> %.3f px (gain %.1f %%)", label, e1, e2,
-             100 * gain)
-    return gain
-
-
-def _intrinsics_pass(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
-                     cfg: RefineConfig, kw: dict, rng: np.random.Generator, *, model: str,
-                     mode: str, min_gain: float = 0.0,
-                     fitted: NDArray[np.int64] | None = None):  # noqa: ANN202
-    """A pass with more intrinsics free (with priors); kept if held-out frames agree.
-
-    ``mode`` "always" keeps it; "auto" keeps it when the median reprojection error of held-out
-    person-frames (neither in the graph nor in ``fitted``, the person-frames earlier solves
-    saw) drops by at least ``min_gain`` (relative; may be negative).
-    """
-    prob = refined_problem(assoc, sel, cameras, cfg, kw, model)
-    try:
-        res = solve(prob, pass_config(cfg, model),
-                    method=cfg.pass_solver if model == "s2" else "levenberg-marquardt")
-    except RefinementFailed as exc:
-        log.warning("%s pass failed, keeping the previous cameras: %s", model, exc)
-        return None
-    if mode == "always":
-        return res + (prob,)
-    seen = sel if fitted is None else np.union1d(sel, fitted)
-    gain = _heldout_gain(assoc, seen, cameras, res[0], cfg, rng, f"{model} pass")
-    return res + (prob,) if gain is not None and gain >= min_gain else None
-
-
-def _settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tuple,
-                             cfg: RefineConfig, kw: dict, joints: NDArray[np.int64],
-                             height: float) -> tuple[Association, dict, tuple]:
-    """The principal-point pass solved again ``cfg.principal_point_updates`` times, each with
-    the bone targets (and the track cuts) triangulated anew with the previous solve's cameras.
-
-    The targets come from the rounds' cameras, whose principal points sit at the image centre,
-    and they hold the pass near that start; re-triangulated, they follow the pass. Returns the
-    association, the passes' keywords (targets) and the solve's outcome (``res`` unchanged if
-    an update fails).
-    """
-    solve_cfg = with_iterations(cfg, cfg.principal_point_update_iterations)
-    for _ in range(cfg.principal_point_updates if cfg.use_bones else 0):
-        cut, targets = track_targets(assoc, res[0], cfg, joints, height)
-        cut = replace(cut, velocity=ground_velocity(cut))
-        prob = refined_problem(cut, sel, res[0], cfg, kw | {"targets": targets}, "s2")
-        try:
-            res = solve(prob, solve_cfg, method=cfg.pass_solver) + (prob,)
-        except RefinementFailed as exc:
-            log.warning("principal-point update failed, keeping the previous solve: %s", exc)
-            break
-        assoc, kw = cut, kw | {"targets": targets}
-    return assoc, kw, res
-
-
-def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
-                           cfg: RefineConfig, kw: dict, *, max_groups: int | None = None
-                           ) -> NDArray[np.float64] | None:
-    """Split-half standard error (px) of each camera's principal point, shape (C,).
-
-    The principal-point pass is solved again on the selected person-frames of each half of the
-    recording (split at the median time, so slowly varying detector errors do not repeat in
-    both); half the distance between the two estimates is the standard error of one estimate
-    from all of them. With ``max_groups``, each half keeps at most that many person-frames
-    (evenly spread in time), so the check costs what two default passes cost whatever the pass's
-    budget. The distance is then *not* scaled down to the pass's size: the principal point's
-    error is mostly not noise (on noise-free, synchronised simulated data the free principal
-    point moved 11 px at an unchanged reprojection error of 0.003 px rms: the people's priors,
-    not the images, settle it), so a noise-like 1/sqrt(n) shrinkage would overstate what more
-    person-frames buy. Cameras of known intrinsics get 0; None if a half cannot be solved.
-    """
-    order = sel[np.argsort(assoc.times[sel], kind="stable")]
-    if max_groups is not None and order.size > 2 * max_groups:
-        order = order[np.linspace(0, order.size - 1, 2 * max_groups).round().astype(int)]
-    t = assoc.times[order]
-    pps = []
-    for part in (order[t <= np.median(t)], order[t > np.median(t)]):
-        prob = refined_problem(assoc, np.sort(part), cameras, cfg, kw, "s2")
-        try:
-            cams = solve(prob, with_iterations(cfg, cfg.spread_iterations),
-                         method=cfg.pass_solver)[0]
-        except RefinementFailed as exc:
-            log.info("split-half principal point unavailable: %s", exc)
-            return None
-        pps.append(np.array([c.K[:2, 2] for c in cams]))
-    return np.linalg.norm(pps[0] - pps[1], axis=1) / 2
 
 
 def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
@@ -503,12 +380,12 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                           cfg.intrinsics_groups)
     updates = cfg.use_bones and cfg.principal_point_updates > 0
     min_gain = -0.005
-    res = _intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, run.rng, model="s2",
-                           mode="always")  # judged here: a second look may follow the updates
+    res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, run.rng, model="s2",
+                          mode="always")  # judged here: a second look may follow the updates
     kept = True
     if res is not None and cfg.principal_point == "auto":
-        gain = _heldout_gain(fit.assoc, np.union1d(chosen, fit.fitted), fit.cameras, res[0],
-                             cfg, run.rng, "s2 pass")
+        gain = heldout_gain(fit.assoc, np.union1d(chosen, fit.fitted), fit.cameras, res[0],
+                            cfg, run.rng, "s2 pass")
         kept = gain is not None and gain >= min_gain
     fit = replace(fit, fitted=np.union1d(fit.fitted, chosen))
     if res is None or not (kept or updates):
@@ -519,7 +396,7 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                              run.data.sizes, run.joints, cfg.intrinsics_groups,
                              fit.assoc.times[fit.fitted])
     assoc, sel, fitted, kw, moved = fit.assoc, fit.sel, fit.fitted, fit.kw, 0.0
-    settled = _settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)
+    settled = settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)
     if settled[2] is not res:  # solved (on the new association, if any)
         moved = camera_change(res[0], settled[2][0])[0]
         log.info("principal-point update moved the cameras by up to %.3f deg", moved)
@@ -538,8 +415,8 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
         seen = np.union1d(picks[1], picks[2])
         unseen = np.union1d(fit.fitted, np.flatnonzero(np.isin(fit.assoc.times,
                                                                 picks[0].times[seen])))
-        gain = _heldout_gain(fit.assoc, unseen, fit.cameras, res[0], cfg, run.rng,
-                             "s2 pass after its updates")
+        gain = heldout_gain(fit.assoc, unseen, fit.cameras, res[0], cfg, run.rng,
+                            "s2 pass after its updates")
         if gain is None or gain < min_gain:
             return fit, None
     cameras, _, info, graph, values, prob = res
@@ -624,9 +501,9 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     if cfg.distortion != "never":
         chosen = _pass_groups(fit.assoc, fit.sel, data.sizes, run.joints, cfg,
                               cfg.distortion_groups)
-        res = _intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
-                               mode=cfg.distortion, min_gain=cfg.distortion_min_gain,
-                               fitted=fit.fitted)
+        res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
+                              mode=cfg.distortion, min_gain=cfg.distortion_min_gain,
+                              fitted=fit.fitted)
         if res is not None:
             cameras, _, info, graph, values, prob = res
             run.solves.append(info)
@@ -635,8 +512,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     prog.step()
     cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
     if prob.obs.shape[0] > cfg.max_groups:
-        graph, values, prob = _rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
-                                                 prob.model)
+        graph, values, prob = rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
+                                                prob.model)
     sigmas = marginal_sigmas(graph, values, prob)
     if pp_se is not None:
         sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]

@@ -311,7 +311,7 @@ def test_upright_torsos_settle_part_of_the_principal_point():
 def test_principal_point_update_takes_targets_from_the_pass(scene):
     """An update re-solves the pass with bone targets triangulated with the pass's cameras, not
     the ones it was given."""
-    from cascalib.stages.refine import _settle_principal_points
+    from cascalib.stages.refine_passes import settle_principal_points
     from cascalib.stages.refine_problem import track_targets
 
     cfg = RefineConfig(principal_point_updates=1)
@@ -323,8 +323,8 @@ def test_principal_point_update_takes_targets_from_the_pass(scene):
     kw = dict(height=h, n_persons=3, reference=0, targets=stale)
     prob = make_problem(assoc, list(scene.truth), cfg, model="s2", **kw)
     res = solve(prob, cfg) + (prob,)
-    _, kw_new, res_new = _settle_principal_points(assoc, np.arange(assoc.n_groups), res, cfg, kw,
-                                                  joints, h)
+    _, kw_new, res_new = settle_principal_points(assoc, np.arange(assoc.n_groups), res, cfg, kw,
+                                                 joints, h)
     for tr, v in kw_new["targets"].items():  # exact data: the pass's cameras are the truth's
         np.testing.assert_allclose(v, fresh[tr], rtol=0.02)
     b = res_new[-1].bones
@@ -333,5 +333,5 @@ def test_principal_point_update_takes_targets_from_the_pass(scene):
     ok = np.isfinite(lengths) & np.isfinite(target)
     assert np.median(np.abs(lengths[ok] / target[ok] - 1)) < 0.02  # solved with the new ones
     off = cfg.model_copy(update={"principal_point_updates": 0})
-    assert _settle_principal_points(assoc, np.arange(assoc.n_groups), res, off, kw, joints,
-                                    h)[2] is res
+    assert settle_principal_points(assoc, np.arange(assoc.n_groups), res, off, kw, joints,
+                                   h)[2] is res
