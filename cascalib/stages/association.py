@@ -4,8 +4,8 @@ Three steps, each vectorised over frames where it can be:
 
 1. *Temporal alignment.* Camera frame ``k`` shows reference frame ``time_rate * k + time_offset``
    (cascalib's TIME CONVENTION). The 2D tracks of every camera are interpolated to common reference
-   times: persons of consecutive frames are linked (track ids when the detector gives them, else a
-   Hungarian match of keypoint distances) and their keypoints blended linearly.
+   times (:mod:`cascalib.stages.track_interpolation`: persons of consecutive frames are linked and
+   their keypoints blended linearly); this module receives them as views.
 2. *Association per reference time.* Each person's ground position is the back-projection of its
    ankles onto the plane at ankle height (or of its hip at hip height). Cameras are added one at
    a time and matched to the clusters so far with the Hungarian algorithm on ground distance;
@@ -34,8 +34,8 @@ from cascalib.nanstats import joint_extent, nanmean, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.triangulation import triangulate
 
-__all__ = ["Association", "associate", "frame_links", "interpolate_slots", "interpolate_views",
-           "link_tracks", "linked_pairs", "person_distances", "stitch_tracks"]
+__all__ = ["Association", "associate", "check_consistency", "ground_velocity", "link_tracks",
+           "row_minima_assignment", "stitch_tracks"]
 
 log = logging.getLogger(__name__)
 
@@ -115,167 +115,6 @@ def ground_velocity(assoc: Association, *, steps: int = 4, max_gap: float = 30.0
     return out
 
 
-def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None,
-                *, gate: float = 0.5) -> NDArray[np.int64]:
-    """Which person slot of frame ``k + 1`` continues each slot of frame ``k``.
-
-    Parameters
-    ----------
-    keypoints : ndarray, shape (F, P, J, 3)
-    track_ids : ndarray, shape (F, P), optional
-        Per-camera track ids; used where both frames have them.
-    gate : float
-        Largest mean keypoint displacement between frames, as a fraction of the person's size.
-
-    Returns
-    -------
-    ndarray of int, shape (F, P)
-        ``links[k, p]`` is the slot in frame ``k + 1`` or -1 (the last row is all -1).
-    """
-    n_f, n_p = keypoints.shape[:2]
-    links = np.full((n_f, n_p), -1, dtype=np.int64)
-    if n_f < 2 or n_p == 0:
-        return links
-    # mean joint displacement of every pair of persons present in consecutive frames (only
-    # those: empty slots are common, and the full (F-1, P, P, J) difference is large)
-    present = np.isfinite(keypoints[..., 0]).any(-1)  # (F, P)
-    k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
-    d = np.full((n_f - 1, n_p, n_p), np.nan)
-    xy = np.ascontiguousarray(keypoints[..., :2])  # gathers of whole rows: twice as fast
-    with np.errstate(invalid="ignore"):  # 0 / 0 for pairs with no joint in common: NaN
-        step = norm_xy(xy[k, p] - xy[k + 1, q])  # (pairs, J)
-        seen = np.isfinite(step)
-        d[k, p, q] = np.where(seen, step, 0.0).sum(-1) / seen.sum(-1)  # nanmean, no copies
-        ext = joint_extent(keypoints)
-        size = norm_xy(ext)  # (F, P)
-    cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
-    rows_ok = np.isfinite(cost).any(2)
-    best, solved = _row_minima_assignment(cost, rows_ok)
-    c_best = np.take_along_axis(cost, best[..., None], -1)[..., 0]
-    links[:-1] = np.where(solved[:, None] & rows_ok & (c_best < gate), best, -1)
-    for k in np.flatnonzero(~solved & rows_ok.any(1)):  # two persons want one slot: Hungarian
-        c = cost[k]
-        r, q = linear_sum_assignment(np.where(np.isfinite(c), c, 1e9))
-        good = c[r, q] < gate
-        links[k, r[good]] = q[good]
-    if track_ids is not None:
-        ta, tb = track_ids[:-1, :, None], track_ids[1:, None, :]
-        same = (ta == tb) & (ta >= 0)
-        has = same.any(-1)
-        links[:-1][has] = same.argmax(-1)[has]
-    return links
-
-
-def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
-                      frames: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Keypoints of one camera at fractional frame positions.
-
-    Parameters
-    ----------
-    keypoints : ndarray, shape (F, P, J, 3)
-    links : ndarray, shape (F, P)
-        From :func:`frame_links`.
-    frames : ndarray, shape (T,)
-        Fractional frame indices of this camera.
-
-    Returns
-    -------
-    ndarray, shape (T, P, J, 3)
-        Person slots follow frame ``floor(frames)``; where the link or a joint of the next frame is
-        missing, the nearer frame's value is used if it is within half a frame, else NaN.
-    """
-    n_f, n_p = keypoints.shape[:2]
-    inside = (frames > -0.5) & (frames < n_f - 0.5)
-    # only the frames inside are gathered: out-of-range times stay NaN
-    fr = frames[inside]
-    k0 = np.clip(np.floor(fr), 0, n_f - 1).astype(np.int64)
-    w = np.clip(fr - k0, 0.0, 1.0)[:, None, None, None]
-    a, b = linked_pairs(keypoints, links, k0)
-    res = _blend(a, b, w)
-    if inside.all():
-        return res
-    out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
-    out[inside] = res
-    return out
-
-
-def person_distances(views: NDArray[np.float64], target: NDArray[np.float64]
-                     ) -> NDArray[np.float64]:
-    """Median joint distance (px) of each person of ``views`` (T, P, J, 2) to ``target``
-    (T, J, 2), shape (T, P); inf where they share no joint."""
-    return np.nan_to_num(nanmedian_last(norm_xy(views - target[:, None])), nan=np.inf)
-
-
-def interpolate_slots(keypoints: NDArray[np.float64], links: NDArray[np.int64],
-                      frames: NDArray[np.float64], slots: NDArray[np.int64]
-                      ) -> NDArray[np.float64]:
-    """:func:`interpolate_views` of a few persons per time only.
-
-    Parameters
-    ----------
-    keypoints, links : ndarray
-        As for :func:`interpolate_views`.
-    frames : ndarray, shape (T,)
-        Fractional frame indices.
-    slots : ndarray of int, shape (T, K)
-        Person slots of frame ``floor(frames)`` (clipped to the recording), -1 for none.
-
-    Returns
-    -------
-    ndarray, shape (T, K, J, D)
-        ``interpolate_views(keypoints, links, frames)[t, slots[t, k]]``; NaN for slot -1.
-    """
-    n_f = keypoints.shape[0]
-    inside = (frames > -0.5) & (frames < n_f - 0.5)
-    k0 = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
-    w = np.clip(frames - k0, 0.0, 1.0)[:, None, None, None]
-    a, b = linked_pairs(keypoints, links, k0, slots)
-    res = _blend(a, b, w)
-    res[(slots < 0) | ~inside[:, None]] = np.nan
-    return res
-
-
-def linked_pairs(keypoints: NDArray[np.float64], links: NDArray[np.int64],
-                 frames: NDArray[np.int64], slots: NDArray[np.int64] | None = None
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Each person's detection in frame ``k`` and the one linked to it in frame ``k + 1``
-    (NaN where unlinked, as everyone in the last frame) for whole frames ``frames`` (T,), or
-    only for ``slots`` (T, K) of them (slot -1 gives slot 0's values: mask them yourself).
-
-    Returns
-    -------
-    a, b : ndarray, shape (T, P or K, J, D)
-    """
-    n_f = keypoints.shape[0]
-    k1 = np.minimum(frames + 1, n_f - 1)[:, None]
-    if slots is None:
-        a = keypoints[frames]  # (T, P, J, D)
-        nxt = links[frames]  # (T, P)
-    else:
-        s = np.maximum(slots, 0)
-        a = keypoints[frames[:, None], s]  # (T, K, J, D)
-        nxt = links[frames[:, None], s]
-    # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
-    b = keypoints[k1, np.maximum(nxt, 0)]
-    b[nxt < 0] = np.nan
-    return a, b
-
-
-def _blend(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[np.float64]
-           ) -> NDArray[np.float64]:
-    """``a + w (b - a)`` (computed in place in a new array: the clock search calls this on large
-    arrays); where one side is missing, the nearer frame's value if it is within half a frame
-    (``a`` before, ``b`` at exactly half a frame if ``a`` is missing), else NaN."""
-    res = b - a
-    res *= w
-    res += a
-    gap = ~np.isfinite(res)
-    if gap.any():
-        near = np.where(w <= 0.5, np.where(np.isfinite(a) | (w < 0.5), a, b), b)
-        np.copyto(res, near, where=gap)
-    return res
-
-
 # -- 2. association per time -----------------------------------------------------------------------
 def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: float,
                      ankle_height: float) -> NDArray[np.float64]:
@@ -298,7 +137,7 @@ def ground_positions(camera: Camera, views: NDArray[np.float64], *, height: floa
     return np.where(np.isfinite(g_ank), g_ank, g_hip)
 
 
-def _row_minima_assignment(cost: NDArray[np.float64], rows: NDArray[np.bool_]
+def row_minima_assignment(cost: NDArray[np.float64], rows: NDArray[np.bool_]
                            ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """Optimal assignment of many small problems at once, where it is just the row minima.
 
@@ -340,7 +179,7 @@ def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
     current clusters (mean ground position of their members) by an optimal assignment, a pair
     within ``gate_m`` joins the cluster and every other person starts a new one. All times are
     processed together (the assignments are the row minima wherever those are distinct, see
-    :func:`_row_minima_assignment`; the Hungarian method solves the rest).
+    :func:`row_minima_assignment`; the Hungarian method solves the rest).
 
     Parameters
     ----------
@@ -373,7 +212,7 @@ def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
             cost = norm_xy(g[:, :, None] - centres[:, None])  # (T, P, K)
             exists = np.arange(k_used)[None, :] < n_cl[:, None]
             cost = np.where(valid[:, :, None] & exists[:, None, :], cost, np.inf)
-            best, solved = _row_minima_assignment(cost, valid)
+            best, solved = row_minima_assignment(cost, valid)
             assign = np.where(valid, best, -1)
             for t in np.flatnonzero(~solved & (n_cl > 0) & valid.any(1)):
                 rows = np.flatnonzero(valid[t])

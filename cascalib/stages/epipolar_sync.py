@@ -44,16 +44,12 @@ from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
 from cascalib.nanstats import joint_extent
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import (
-    Association,
-    associate,
-    interpolate_views,
-    person_distances,
-)
+from cascalib.stages.association import Association, associate
 from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.single_view_solver import hartley_scale
 from cascalib.stages.sync import irls_l1
+from cascalib.stages.track_interpolation import interpolate_views, person_distances
 from cascalib.tracks import Tracks
 
 __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",

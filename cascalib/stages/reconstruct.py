@@ -23,15 +23,10 @@ from cascalib.camera import Camera
 from cascalib.errors import InputError
 from cascalib.poses import Poses3D
 from cascalib.skeletons import CANONICAL_JOINTS
-from cascalib.stages.association import (
-    Association,
-    associate,
-    frame_links,
-    interpolate_views,
-    stitch_tracks,
-)
+from cascalib.stages.association import Association, associate, stitch_tracks
 from cascalib.stages.person_size import bone_pairs, split_by_size
 from cascalib.stages.refine_config import RefineConfig
+from cascalib.stages.track_interpolation import frame_links, interpolate_views
 from cascalib.stages.triangulation import triangulate
 from cascalib.tracks import Tracks
 
@@ -90,7 +85,7 @@ _LINKS: weakref.WeakKeyDictionary[Tracks, NDArray[np.int64]] = weakref.WeakKeyDi
 
 
 def _frame_links(tracks: Tracks) -> NDArray[np.int64]:
-    """:func:`~cascalib.stages.association.frame_links` of ``tracks``, made once."""
+    """:func:`~cascalib.stages.track_interpolation.frame_links` of ``tracks``, made once."""
     links = _LINKS.get(tracks)
     if links is None:
         links = frame_links(tracks.canonical(), tracks.track_ids)

@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 
 from cascalib.camera import Camera
 from cascalib.geometry import norm_xy
-from cascalib.stages.association import (
-    Association,
+from cascalib.stages.association import Association
+from cascalib.stages.track_interpolation import (
     interpolate_slots,
     interpolate_views,
     linked_pairs,
@@ -50,8 +50,8 @@ log = logging.getLogger(__name__)
 
 
 def previous_slots(links: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Inverse of :func:`~cascalib.stages.association.frame_links`: ``prev[k, q]`` is the slot of
-    frame ``k - 1`` that continues into slot ``q`` of frame ``k``, or -1."""
+    """Inverse of :func:`~cascalib.stages.track_interpolation.frame_links`: ``prev[k, q]`` is
+    the slot of frame ``k - 1`` that continues into slot ``q`` of frame ``k``, or -1."""
     prev = np.full_like(links, -1)
     k, p = np.nonzero(links[:-1] >= 0)
     prev[k + 1, links[k, p]] = p
@@ -110,9 +110,9 @@ def _within_reach(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     same, and whether that is all of them (T,; no more than ``most``).
 
     Inside that cell a joint moves linearly between its two detections and no joint appears
-    or vanishes (:func:`~cascalib.stages.association.interpolate_views` takes a missing joint
-    from the nearer frame), so by at most half of the distance between the two detections; a
-    median of distances moves by no more than its largest joint does.
+    or vanishes (:func:`~cascalib.stages.track_interpolation.interpolate_views` takes a
+    missing joint from the nearer frame), so by at most half of the distance between the two
+    detections; a median of distances moves by no more than its largest joint does.
     """
     a, b = linked_pairs(keypoints, links, _cell(frames, keypoints.shape[0])[0])
     step = np.nan_to_num(norm_xy(b - a), nan=0.0).max(-1)  # (T, P): largest joint move
@@ -132,7 +132,7 @@ def track_velocity(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     ----------
     keypoints : ndarray, shape (F, P, J, D)
     links, prev : ndarray of int, shape (F, P)
-        :func:`~cascalib.stages.association.frame_links` and :func:`previous_slots`.
+        :func:`~cascalib.stages.track_interpolation.frame_links` and :func:`previous_slots`.
     frames : ndarray, shape (T,)
         Fractional frames ``k + w``.
     slots : ndarray of int, shape (T,)
@@ -179,7 +179,7 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     keypoints : list of ndarray, shape (F_c, P_c, 26, 3)
         Canonical tracks per camera.
     links : list of ndarray, shape (F_c, P_c)
-        Frame-to-frame person links (:func:`cascalib.stages.association.frame_links`).
+        Frame-to-frame person links (:func:`cascalib.stages.track_interpolation.frame_links`).
     cameras : list of Camera
         Current cameras (refined geometry, current offsets).
     assoc : Association

@@ -10,12 +10,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from cascalib.camera import Camera, look_at
-from cascalib.stages.association import (
-    _cluster_all,
-    _row_minima_assignment,
-    check_consistency,
-    frame_links,
-)
+from cascalib.stages.association import _cluster_all, check_consistency, row_minima_assignment
+from cascalib.stages.track_interpolation import frame_links
 
 
 def _clusters_one_time(grounds: list[np.ndarray], gate: float) -> list[list[int]]:
@@ -61,7 +57,7 @@ def test_row_minima_assignment_agrees_with_hungarian():
     cost[rng.random(cost.shape) < 0.2] = np.inf
     rows = rng.random((400, 4)) < 0.8
     cost[~rows] = np.inf
-    best, solved = _row_minima_assignment(cost, rows)
+    best, solved = row_minima_assignment(cost, rows)
     assert 0.1 < solved.mean() < 0.9  # both branches are exercised
     for n in np.flatnonzero(solved):
         r = np.flatnonzero(rows[n])

@@ -7,13 +7,7 @@ import pytest
 from refine_scene import make_scene, perturb
 
 from cascalib.skeletons import CANONICAL_INDEX
-from cascalib.stages.association import (
-    Association,
-    associate,
-    frame_links,
-    interpolate_slots,
-    interpolate_views,
-)
+from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups
 from cascalib.stages.quality import assess_camera, unit_weight_sigma
 from cascalib.stages.reconstruct import prepare as _prepare
@@ -21,6 +15,7 @@ from cascalib.stages.reconstruct import views_at as _views
 from cascalib.stages.refine import camera_change, refine
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.time_refine import refine_offsets
+from cascalib.stages.track_interpolation import frame_links, interpolate_slots, interpolate_views
 from cascalib.stages.triangulation import BLOCK_POINTS, triangulate
 
 

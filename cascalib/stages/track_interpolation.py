@@ -1,0 +1,185 @@
+"""One camera's 2D tracks over time: persons linked from frame to frame, and their keypoints at
+fractional frames.
+
+Camera frame ``k`` shows reference frame ``time_rate * k + time_offset`` (cascalib's TIME
+CONVENTION), so a reference time falls between two frames of every other camera. Persons of
+consecutive frames are linked (:func:`frame_links`: track ids when the detector gives them, else
+a Hungarian match of keypoint distances) and their keypoints blended linearly
+(:func:`interpolate_views`, :func:`interpolate_slots`). Stage V's association
+(:mod:`cascalib.stages.association`), clock search (:mod:`cascalib.stages.time_refine`) and
+epipolar sync read the tracks through these.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+from cascalib.geometry import norm_xy
+from cascalib.nanstats import joint_extent, nanmedian_last
+from cascalib.stages.association import row_minima_assignment
+
+__all__ = ["frame_links", "interpolate_slots", "interpolate_views", "linked_pairs",
+           "person_distances"]
+
+
+def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | None = None,
+                *, gate: float = 0.5) -> NDArray[np.int64]:
+    """Which person slot of frame ``k + 1`` continues each slot of frame ``k``.
+
+    Parameters
+    ----------
+    keypoints : ndarray, shape (F, P, J, 3)
+    track_ids : ndarray, shape (F, P), optional
+        Per-camera track ids; used where both frames have them.
+    gate : float
+        Largest mean keypoint displacement between frames, as a fraction of the person's size.
+
+    Returns
+    -------
+    ndarray of int, shape (F, P)
+        ``links[k, p]`` is the slot in frame ``k + 1`` or -1 (the last row is all -1).
+    """
+    n_f, n_p = keypoints.shape[:2]
+    links = np.full((n_f, n_p), -1, dtype=np.int64)
+    if n_f < 2 or n_p == 0:
+        return links
+    # mean joint displacement of every pair of persons present in consecutive frames (only
+    # those: empty slots are common, and the full (F-1, P, P, J) difference is large)
+    present = np.isfinite(keypoints[..., 0]).any(-1)  # (F, P)
+    k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
+    d = np.full((n_f - 1, n_p, n_p), np.nan)
+    xy = np.ascontiguousarray(keypoints[..., :2])  # gathers of whole rows: twice as fast
+    with np.errstate(invalid="ignore"):  # 0 / 0 for pairs with no joint in common: NaN
+        step = norm_xy(xy[k, p] - xy[k + 1, q])  # (pairs, J)
+        seen = np.isfinite(step)
+        d[k, p, q] = np.where(seen, step, 0.0).sum(-1) / seen.sum(-1)  # nanmean, no copies
+        ext = joint_extent(keypoints)
+        size = norm_xy(ext)  # (F, P)
+    cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
+    rows_ok = np.isfinite(cost).any(2)
+    best, solved = row_minima_assignment(cost, rows_ok)
+    c_best = np.take_along_axis(cost, best[..., None], -1)[..., 0]
+    links[:-1] = np.where(solved[:, None] & rows_ok & (c_best < gate), best, -1)
+    for k in np.flatnonzero(~solved & rows_ok.any(1)):  # two persons want one slot: Hungarian
+        c = cost[k]
+        r, q = linear_sum_assignment(np.where(np.isfinite(c), c, 1e9))
+        good = c[r, q] < gate
+        links[k, r[good]] = q[good]
+    if track_ids is not None:
+        ta, tb = track_ids[:-1, :, None], track_ids[1:, None, :]
+        same = (ta == tb) & (ta >= 0)
+        has = same.any(-1)
+        links[:-1][has] = same.argmax(-1)[has]
+    return links
+
+
+def interpolate_views(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                      frames: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Keypoints of one camera at fractional frame positions.
+
+    Parameters
+    ----------
+    keypoints : ndarray, shape (F, P, J, 3)
+    links : ndarray, shape (F, P)
+        From :func:`frame_links`.
+    frames : ndarray, shape (T,)
+        Fractional frame indices of this camera.
+
+    Returns
+    -------
+    ndarray, shape (T, P, J, 3)
+        Person slots follow frame ``floor(frames)``; where the link or a joint of the next frame is
+        missing, the nearer frame's value is used if it is within half a frame, else NaN.
+    """
+    n_f, n_p = keypoints.shape[:2]
+    inside = (frames > -0.5) & (frames < n_f - 0.5)
+    # only the frames inside are gathered: out-of-range times stay NaN
+    fr = frames[inside]
+    k0 = np.clip(np.floor(fr), 0, n_f - 1).astype(np.int64)
+    w = np.clip(fr - k0, 0.0, 1.0)[:, None, None, None]
+    a, b = linked_pairs(keypoints, links, k0)
+    res = _blend(a, b, w)
+    if inside.all():
+        return res
+    out = np.full((len(frames), n_p) + keypoints.shape[2:], np.nan)
+    out[inside] = res
+    return out
+
+
+def person_distances(views: NDArray[np.float64], target: NDArray[np.float64]
+                     ) -> NDArray[np.float64]:
+    """Median joint distance (px) of each person of ``views`` (T, P, J, 2) to ``target``
+    (T, J, 2), shape (T, P); inf where they share no joint."""
+    return np.nan_to_num(nanmedian_last(norm_xy(views - target[:, None])), nan=np.inf)
+
+
+def interpolate_slots(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                      frames: NDArray[np.float64], slots: NDArray[np.int64]
+                      ) -> NDArray[np.float64]:
+    """:func:`interpolate_views` of a few persons per time only.
+
+    Parameters
+    ----------
+    keypoints, links : ndarray
+        As for :func:`interpolate_views`.
+    frames : ndarray, shape (T,)
+        Fractional frame indices.
+    slots : ndarray of int, shape (T, K)
+        Person slots of frame ``floor(frames)`` (clipped to the recording), -1 for none.
+
+    Returns
+    -------
+    ndarray, shape (T, K, J, D)
+        ``interpolate_views(keypoints, links, frames)[t, slots[t, k]]``; NaN for slot -1.
+    """
+    n_f = keypoints.shape[0]
+    inside = (frames > -0.5) & (frames < n_f - 0.5)
+    k0 = np.clip(np.floor(frames), 0, n_f - 1).astype(np.int64)
+    w = np.clip(frames - k0, 0.0, 1.0)[:, None, None, None]
+    a, b = linked_pairs(keypoints, links, k0, slots)
+    res = _blend(a, b, w)
+    res[(slots < 0) | ~inside[:, None]] = np.nan
+    return res
+
+
+def linked_pairs(keypoints: NDArray[np.float64], links: NDArray[np.int64],
+                 frames: NDArray[np.int64], slots: NDArray[np.int64] | None = None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each person's detection in frame ``k`` and the one linked to it in frame ``k + 1``
+    (NaN where unlinked, as everyone in the last frame) for whole frames ``frames`` (T,), or
+    only for ``slots`` (T, K) of them (slot -1 gives slot 0's values: mask them yourself).
+
+    Returns
+    -------
+    a, b : ndarray, shape (T, P or K, J, D)
+    """
+    n_f = keypoints.shape[0]
+    k1 = np.minimum(frames + 1, n_f - 1)[:, None]
+    if slots is None:
+        a = keypoints[frames]  # (T, P, J, D)
+        nxt = links[frames]  # (T, P)
+    else:
+        s = np.maximum(slots, 0)
+        a = keypoints[frames[:, None], s]  # (T, K, J, D)
+        nxt = links[frames[:, None], s]
+    # one fancy index gathers the linked slot of the next frame (no full copy of that frame)
+    b = keypoints[k1, np.maximum(nxt, 0)]
+    b[nxt < 0] = np.nan
+    return a, b
+
+
+def _blend(a: NDArray[np.float64], b: NDArray[np.float64], w: NDArray[np.float64]
+           ) -> NDArray[np.float64]:
+    """``a + w (b - a)`` (computed in place in a new array: the clock search calls this on large
+    arrays); where one side is missing, the nearer frame's value if it is within half a frame
+    (``a`` before, ``b`` at exactly half a frame if ``a`` is missing), else NaN."""
+    res = b - a
+    res *= w
+    res += a
+    gap = ~np.isfinite(res)
+    if gap.any():
+        near = np.where(w <= 0.5, np.where(np.isfinite(a) | (w < 0.5), a, b), b)
+        np.copyto(res, near, where=gap)
+    return res
