@@ -9,7 +9,8 @@
    initialisation); the best is refined to a sub-frame offset, a rate ratio and a 2D similarity;
 3. globally consistent clocks from all pairs (robust L1 over the pair graph, so that one wrong
    pair is outvoted by the cycles through the other cameras) and globally consistent ground
-   alignments (robust least squares over every accepted pair's matched points);
+   alignments (robust least squares over every accepted pair's matched points;
+   :mod:`~cascalib.stages.align_global`);
 4. the camera vote (:mod:`~cascalib.stages.consensus`): each doubtful camera (a rejected pair,
    only ambiguous pairs, or not placed) moves to the clock and heading that the ICP evidence
    summed over all of its pairs supports best, trying every candidate of every pair; its pairs
@@ -27,7 +28,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from cascalib.blas import one_blas_thread
 from cascalib.calibration import Calibration
@@ -35,6 +35,11 @@ from cascalib.camera import Camera
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
+from cascalib.stages.align_global import (
+    PairAlignment,
+    doubtful_cameras,
+    global_alignment,
+)
 from cascalib.stages.consensus import CandidateEdge, vote_cameras
 from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks, pair_cost
 from cascalib.stages.ground import GroundTracks, ground_trajectories
@@ -49,37 +54,12 @@ from cascalib.stages.icp import (
 )
 from cascalib.stages.reconstruct import prepare
 from cascalib.stages.rotation import rotation_search
-from cascalib.stages.sync import GridTrack, SyncCurve, resample_tracks, search_offsets, solve_time
+from cascalib.stages.sync import GridTrack, resample_tracks, search_offsets
 from cascalib.tracks import Tracks
 
 __all__ = ["AlignConfig", "PairAlignment", "AlignmentResult", "align_cameras"]
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class PairAlignment:
-    """Everything known about one camera pair (A = ``cameras[i]``, B = ``cameras[j]``).
-
-    Grid times are reference frames under the fps prior: ``u_a = rate * u_b + offset``.
-    ``icp_scores`` holds the ICP evidence of each candidate of ``curve`` (same order);
-    ``ambiguity`` = second-best over best evidence; ``accepted``: kept by the global solve;
-    ``icp_angles``: each candidate's rotation after ICP (rad); ``evidence_sigma``: the residual
-    scale (m) of its evidence. A pair refitted at the offset chosen by the camera vote
-    (:mod:`~cascalib.stages.consensus`) has ``chosen = -1`` unless a candidate lies there,
-    and the vote's ambiguity.
-    """
-
-    i: int
-    j: int
-    curve: SyncCurve
-    icp_scores: list[float]
-    chosen: int
-    fit: SyncFit | None
-    ambiguity: float
-    accepted: bool = False
-    icp_angles: list[float] = field(default_factory=list)
-    evidence_sigma: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -370,37 +350,6 @@ def _xyt(lanes: Lanes, offset: int) -> NDArray[np.float64]:
     return np.c_[lanes.pos[g, k], g + offset]
 
 
-def _global_time(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-    usable = [p for p in pairs if p.fit is not None]
-    edges = [(p.i, p.j, p.fit.offset, np.log(p.fit.rate),  # type: ignore[union-attr]
-              max(0.05, 1.0 - p.ambiguity), p.fit.offset_sd,  # type: ignore[union-attr]
-              p.fit.rate_sd / p.fit.rate) for p in usable]  # type: ignore[union-attr]
-    a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)
-    # a camera whose every pair disagrees with the others keeps its most confident pair
-    # (flagged ambiguous by its confidence) rather than dropping out of the rig
-    for c in range(n):
-        inc = [k for k, p in enumerate(usable) if c in (p.i, p.j)]
-        if c != ref and inc and not ok[inc].any():
-            ok[max(inc, key=lambda k: edges[k][4])] = True
-            a, b, _ = solve_time(n, [e for e, keep in zip(edges, ok, strict=True) if keep],
-                                 ref, tolerance=np.inf)
-    accepted = np.zeros(len(pairs), bool)
-    idx = [k for k, p in enumerate(pairs) if p.fit is not None]
-    accepted[idx] = ok
-    return a, b, accepted
-
-
-def _global(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig, sr: float
-            ) -> tuple[list[PairAlignment], NDArray[np.float64], NDArray[np.float64],
-                       list[Similarity2D | None]]:
-    """Global clocks, the pairs marked accepted or not, and the ground transforms."""
-    a, b, accepted = _global_time(n, ref, pairs, cfg)
-    pairs = [replace(p, accepted=bool(acc)) for p, acc in zip(pairs, accepted, strict=True)]
-    T = _global_space(n, ref, [p for p in pairs if p.accepted], sr)
-    return pairs, a, b, T
-
-
 def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
           T: list[Similarity2D | None], lanes: list[Lanes], fine: list[GridTrack],
           noise: list[tuple[NDArray[np.float64], float]], fps_ref: float, cfg: AlignConfig,
@@ -439,7 +388,7 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
     # (the caches may then compute an entry twice, never wrongly)
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
         votes = vote_cameras(n, ref, edges, b, yaw, placed, score, settle,
-                             movable=_doubtful(n, ref, pairs, placed, cfg),
+                             movable=doubtful_cameras(n, ref, pairs, placed, cfg),
                              tolerance=cfg.offset_tolerance, mapper=pool.map)
     moved = {v.camera: v for v in votes if v.moved}
     if not moved:
@@ -462,77 +411,6 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
         amb = max(moved[c].ambiguity for c in (p.i, p.j) if c in moved)
         out.append(replace(p, chosen=near[0] if near else -1, fit=fit, ambiguity=amb))
     return out
-
-
-def _doubtful(n: int, ref: int, pairs: list[PairAlignment], placed: NDArray[np.bool_],
-              cfg: AlignConfig) -> NDArray[np.bool_]:
-    """Cameras worth a vote: not placed, with a pair that disagrees with the global clocks,
-    or whose every agreeing pair is ambiguous."""
-    out = ~placed
-    for c in range(n):
-        inc = [p for p in pairs if c in (p.i, p.j) and p.fit is not None]
-        acc = [p for p in inc if p.accepted]
-        if len(acc) < len(inc) or min((p.ambiguity for p in acc), default=1.0) > \
-                cfg.ambiguity_ratio:
-            out[c] = True
-    out[ref] = False
-    return out
-
-
-def _spanning_init(n: int, ref: int, pairs: list[PairAlignment]) -> list[Similarity2D | None]:
-    """Chain pairwise similarities from the reference along the most confident pairs."""
-    T: list[Similarity2D | None] = [None] * n
-    T[ref] = Similarity2D(0.0, np.zeros(2))
-    order = sorted(pairs, key=lambda p: p.ambiguity)
-    changed = True
-    while changed:
-        changed = False
-        for p in order:
-            fit = p.fit
-            assert fit is not None
-            if T[p.i] is not None and T[p.j] is None:
-                T[p.j] = T[p.i].compose(fit.transform)  # type: ignore[union-attr]
-                changed = True
-            elif T[p.j] is not None and T[p.i] is None:
-                T[p.i] = T[p.j].compose(fit.transform.inverse())  # type: ignore[union-attr]
-                changed = True
-    return T
-
-
-def _global_space(n: int, ref: int, pairs: list[PairAlignment], scale_range: float
-                  ) -> list[Similarity2D | None]:
-    """Robust joint fit of all ground similarities to every accepted pair's matched points."""
-    T0 = _spanning_init(n, ref, pairs)
-    free = [c for c in range(n) if c != ref and T0[c] is not None]
-    pairs = [p for p in pairs if T0[p.i] is not None and T0[p.j] is not None]
-    if not free or len(pairs) < 2:
-        return T0
-    pos = {c: k for k, c in enumerate(free)}
-
-    def unpack(x: NDArray[np.float64], c: int) -> Similarity2D:
-        if c == ref:
-            return Similarity2D(0.0, np.zeros(2))
-        v = x[4 * pos[c]: 4 * pos[c] + 4]
-        return Similarity2D(float(v[0]), v[1:3], float(np.exp(v[3])))
-
-    def resid(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = []
-        for p in pairs:
-            f = p.fit
-            assert f is not None
-            w = np.sqrt(max(0.05, 1.0 - p.ambiguity))
-            out.append(w * (unpack(x, p.i).apply(f.pairs_a)
-                            - unpack(x, p.j).apply(f.pairs_b)).ravel())
-        return np.concatenate(out)
-
-    x0 = np.concatenate([[T0[c].angle, *T0[c].t, np.log(T0[c].scale)]  # type: ignore[union-attr]
-                         for c in free])
-    ls = np.log(scale_range) + 1e-9
-    lo = np.tile([-np.inf, -np.inf, -np.inf, -ls], len(free))
-    hi = np.tile([np.inf, np.inf, np.inf, ls], len(free))
-    sol = least_squares(resid, np.clip(x0, lo + 1e-12, hi - 1e-12), bounds=(lo, hi),
-                        loss="soft_l1", f_scale=0.1)
-    return [unpack(sol.x, c) if (c == ref or c in pos) else None for c in range(n)]
 
 
 def _place(cam: Camera, T: Similarity2D) -> Camera:
@@ -615,11 +493,11 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
             pairs.append(pair)
             report(0.2 + 0.75 * len(pairs) / len(ij))
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
-    pairs, a, b, T = _global(n, ref, pairs, cfg, sr)
+    pairs, a, b, T = global_alignment(n, ref, pairs, cfg, sr)
     if cfg.camera_vote and n > 2:
         revised = _vote(n, ref, pairs, b, T, lanes, fine, noise, fps_ref, cfg, sr, rng)
         if revised is not None:
-            pairs, a, b, T = _global(n, ref, revised, cfg, sr)
+            pairs, a, b, T = global_alignment(n, ref, revised, cfg, sr)
     if all(T[c] is None for c in range(n) if c != ref):
         raise EstimationFailed("no camera could be synchronised and aligned with the "
                                "reference: the cameras may not see the same people, or too "
