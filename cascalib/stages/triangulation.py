@@ -191,7 +191,7 @@ def _triangulate_block(cameras: list[Camera], uv: NDArray[np.float64],
     """:func:`triangulate` of one block of points (``uv`` (C, N, 2), N >= 1)."""
     n_cams, n = uv.shape[:2]
     seen = np.isfinite(uv[..., 0]) & np.isfinite(uv[..., 1])  # not .all(-1): a slow reduce
-    c0 = np.ones((n_cams, n)) if conf is None else np.nan_to_num(np.asarray(conf, float))
+    c0 = np.ones((n_cams, n)) if conf is None else np.nan_to_num(conf)  # float64: triangulate
     c0 = np.where(seen, np.clip(c0, 1e-3, None), 0.0)
     xy = np.stack([cam.undistort(uv[i]) for i, cam in enumerate(cameras)])
     seen &= np.isfinite(xy[..., 0]) & np.isfinite(xy[..., 1])
