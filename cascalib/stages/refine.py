@@ -139,6 +139,15 @@ def _pass_groups(assoc: Association, sel: NDArray[np.int64], sizes: list[tuple[i
     return _select(assoc, sizes, n, joints, cfg)
 
 
+def _intrinsics_budget(assoc: Association, cfg: RefineConfig) -> int:
+    """Person-frames asked of the principal-point pass: ``cfg.intrinsics_groups_per_person``
+    per person in view at a reference time of ``assoc`` (on average), at least
+    ``cfg.intrinsics_groups`` and at most ``cfg.intrinsics_groups_max``."""
+    in_view = assoc.n_groups / max(np.unique(assoc.times).size, 1)
+    want = int(cfg.intrinsics_groups_per_person * in_view)
+    return max(cfg.intrinsics_groups, min(want, cfg.intrinsics_groups_max))
+
+
 def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
             sigmas: list[dict[str, float]], cfg: RefineConfig) -> dict[str, CameraQuality]:
     """Per-camera quality from the reprojection errors (G, C, 26) of the final triangulation."""
@@ -376,8 +385,8 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
     cfg = run.cfg
     if cfg.principal_point == "never":
         return fit, None
-    chosen = _pass_groups(fit.assoc, fit.sel, run.data.sizes, run.joints, cfg,
-                          cfg.intrinsics_groups)
+    budget = _intrinsics_budget(fit.assoc, cfg)
+    chosen = _pass_groups(fit.assoc, fit.sel, run.data.sizes, run.joints, cfg, budget)
     updates = cfg.use_bones and cfg.principal_point_updates > 0
     min_gain = -0.005
     res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, run.rng, model="s2",
@@ -393,7 +402,7 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
     picks = (fit.assoc, fit.sel, chosen, fit.fitted)
     if cfg.principal_point_reassociate and updates:
         picks = _reassociate(run.rounds, res[0], cfg, run.height, run.data.reference,
-                             run.data.sizes, run.joints, cfg.intrinsics_groups,
+                             run.data.sizes, run.joints, budget,
                              fit.assoc.times[fit.fitted])
     assoc, sel, fitted, kw, moved = fit.assoc, fit.sel, fit.fitted, fit.kw, 0.0
     settled = settle_principal_points(picks[0], picks[2], res, cfg, kw, run.joints, run.height)

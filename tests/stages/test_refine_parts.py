@@ -233,6 +233,30 @@ def test_intrinsics_pass_groups_leave_held_out_frames():
     assert len(sel) == 4 * 750 // 5 and sel.max() <= 749  # 750 usable
 
 
+def test_principal_point_pass_budget_grows_with_the_persons_in_view():
+    """intrinsics_groups_per_person per person in view (on average over the reference times),
+    within intrinsics_groups .. intrinsics_groups_max."""
+    from cascalib.stages.refine import _intrinsics_budget
+
+    def assoc_of(n_times: int, persons: list[int]) -> Association:
+        """``persons[k % len(persons)]`` persons at reference time k."""
+        times = np.repeat(np.arange(n_times) * 2.0,
+                          [persons[k % len(persons)] for k in range(n_times)])
+        n = times.size
+        return Association(times, np.zeros((n, 2, 26, 3)), np.zeros(n, dtype=np.int64),
+                           np.zeros((n, 2)))
+
+    cfg = RefineConfig(intrinsics_groups=1200, intrinsics_groups_per_person=300,
+                       intrinsics_groups_max=3000)
+    assert _intrinsics_budget(assoc_of(1000, [3]), cfg) == 1200  # 900: the floor
+    assert _intrinsics_budget(assoc_of(1000, [6]), cfg) == 1800
+    assert _intrinsics_budget(assoc_of(1000, [6, 8]), cfg) == 2100  # 7 on average
+    assert _intrinsics_budget(assoc_of(500, [6, 8]), cfg) == 2100  # not the sequence length
+    assert _intrinsics_budget(assoc_of(1000, [14]), cfg) == 3000  # 4200: the ceiling
+    assert _intrinsics_budget(assoc_of(1000, [14]),
+                              cfg.model_copy(update={"intrinsics_groups_per_person": 0})) == 1200
+
+
 def test_time_offsets_recovered(scene):
     noisy = make_scene(n_frames=60, n_persons=3, noise_px=0.5, offsets=(0, 0.3, -0.4, 0.2),
                        seed=2)
