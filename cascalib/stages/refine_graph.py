@@ -130,6 +130,13 @@ class GraphProblem:
         idx = np.arange(s * j, dtype=np.int64).reshape(s, j)
         return np.where(np.isfinite(self.points0).all(-1), idx, -1)
 
+    def projected(self, min_confidence: float) -> NDArray[np.bool_]:
+        """(S, C, J) whether an observation gets a reprojection factor: seen with at least
+        ``min_confidence``, of a joint that is a variable."""
+        conf = self.obs[..., 2]
+        return ((self.point_keys()[:, None, :] >= 0) & np.isfinite(self.obs[..., 0])
+                & (conf >= min_confidence))
+
 
 def _robust(kernel: str, k: float, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
     est = (gtsam.noiseModel.mEstimator.Huber.Create(k) if kernel == "huber"
@@ -145,7 +152,7 @@ def _add_reprojection(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
               "ds2": gtsam.GeneralSFMFactor2Cal3DS2}[prob.model]
     keys = prob.point_keys()
     conf = prob.obs[..., 2]
-    ok = (keys[:, None, :] >= 0) & np.isfinite(prob.obs[..., 0]) & (conf >= cfg.min_confidence)
+    ok = prob.projected(cfg.min_confidence)
     level = np.clip(np.round(np.nan_to_num(conf) * 20), 1, 20).astype(int)
     s_i, c_i, j_i = np.nonzero(ok)
     step = np.log(1.05)
@@ -388,7 +395,7 @@ def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
         opt = _optimizer(graph, values, cfg, cfg.schur)
         before = opt.error()
         result = opt.optimize()
-    except RuntimeError as exc:
+    except (RuntimeError, ValueError) as exc:
         if not cfg.schur:
             raise
         log.warning("points-first solve failed (%s), solving in COLAMD ordering", exc or
@@ -405,7 +412,8 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
 
     Should the points-first solve raise a ``RuntimeError`` (gtsam's Schur-mode optimiser once
     stopped with an empty one on a simulated phone rig with known intrinsics, where COLAMD
-    went on), it is repeated in COLAMD ordering.
+    went on) or a ``ValueError`` (gtsam's, for a variable in no factor), it is repeated in
+    COLAMD ordering.
 
     Gauss-Newton ("gauss-newton", for starts already near the solution) takes every step
     undamped: one linear solve per iteration, where LM also builds a damped copy of the linear
@@ -419,7 +427,8 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     Raises
     ------
     RefinementFailed
-        If gtsam fails (indeterminate system, NaN) or the error does not decrease.
+        If gtsam fails (indeterminate system, a variable in no factor, NaN) or the error does
+        not decrease.
     """
     t0 = time.perf_counter()
     result, after = None, np.inf
@@ -429,7 +438,7 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
             before = opt.error()
             result, iterations = opt.optimize(), opt.iterations()
             after = opt.error()
-        except RuntimeError as exc:
+        except (RuntimeError, ValueError) as exc:
             log.info("Gauss-Newton failed (%s): Levenberg-Marquardt instead",
                      str(exc).strip().split("\n")[0] or "no message")
             result = None
@@ -440,7 +449,9 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
     if result is None:
         try:
             result, iterations, before, after = _levenberg_marquardt(graph, values, cfg)
-        except RuntimeError as exc:  # gtsam's IndeterminantLinearSystemException and friends
+        # gtsam's IndeterminantLinearSystemException and friends; a ValueError when a variable
+        # is in no factor (the ordering names it; solve() checks for a camera that sees nobody)
+        except (RuntimeError, ValueError) as exc:
             raise RefinementFailed(f"bundle adjustment failed: {exc}") from exc
     if not np.isfinite(after) or after > before * (1 + 1e-9):
         raise RefinementFailed(f"bundle adjustment diverged (error {before:.4g} -> {after:.4g})")

@@ -35,7 +35,7 @@ from cascalib.stages.refine_problem import (
 )
 
 __all__ = ["heldout_gain", "intrinsics_pass", "principal_point_spread", "rounds_size_graph",
-           "settle_principal_points"]
+           "settle_principal_points", "split_halves"]
 
 log = logging.getLogger(__name__)
 
@@ -133,6 +133,25 @@ def settle_principal_points(assoc: Association, sel: NDArray[np.int64], res: tup
     return assoc, kw, res
 
 
+def split_halves(assoc: Association, order: NDArray[np.int64], *, min_groups: int = 10,
+                 n_blocks: int = 8) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The person-frames ``order`` (sorted by time) in two halves for a split-half check:
+    before and after the median time, or, where that leaves a camera that sees any of them
+    with fewer than ``min_groups`` in a half (a camera that started recording late or stopped
+    early), alternate blocks of ``n_blocks`` equal parts of ``order``: a solve on a half
+    without a camera has nothing to constrain that camera."""
+    t = assoc.times[order]
+    first = t <= np.median(t)
+    seen = np.isfinite(assoc.obs[order][..., 0]).any(-1)  # (G, C)
+    counts = np.stack([seen[first].sum(0), seen[~first].sum(0)])
+    present = seen.any(0)
+    if (counts[:, present] < min_groups).any():
+        first = (np.arange(order.size) * n_blocks // max(order.size, 1)) % 2 == 0
+        log.info("split-half check in %d alternating time blocks: a camera sees too few "
+                 "person-frames on one side of the median time", n_blocks)
+    return order[first], order[~first]
+
+
 def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: list[Camera],
                            cfg: RefineConfig, kw: dict, *, max_groups: int | None = None
                            ) -> NDArray[np.float64] | None:
@@ -140,21 +159,22 @@ def principal_point_spread(assoc: Association, sel: NDArray[np.int64], cameras: 
 
     The principal-point pass is solved again on the selected person-frames of each half of the
     recording (split at the median time, so slowly varying detector errors do not repeat in
-    both); half the distance between the two estimates is the standard error of one estimate
-    from all of them. With ``max_groups``, each half keeps at most that many person-frames
-    (evenly spread in time), so the check costs what two default passes cost whatever the pass's
-    budget. The distance is then *not* scaled down to the pass's size: the principal point's
-    error is mostly not noise (on noise-free, synchronised simulated data the free principal
-    point moved 11 px at an unchanged reprojection error of 0.003 px rms: the people's priors,
-    not the images, settle it), so a noise-like 1/sqrt(n) shrinkage would overstate what more
-    person-frames buy. Cameras of known intrinsics get 0; None if a half cannot be solved.
+    both; in alternating blocks of time where a camera would miss a half, see
+    :func:`split_halves`); half the distance between the two estimates is the standard error
+    of one estimate from all of them. With ``max_groups``, each half keeps at most that many
+    person-frames (evenly spread in time), so the check costs what two default passes cost
+    whatever the pass's budget. The distance is then *not* scaled down to the pass's size: the
+    principal point's error is mostly not noise (on noise-free, synchronised simulated data
+    the free principal point moved 11 px at an unchanged reprojection error of 0.003 px rms:
+    the people's priors, not the images, settle it), so a noise-like 1/sqrt(n) shrinkage would
+    overstate what more person-frames buy. Cameras of known intrinsics get 0; None if a half
+    cannot be solved.
     """
     order = sel[np.argsort(assoc.times[sel], kind="stable")]
     if max_groups is not None and order.size > 2 * max_groups:
         order = order[np.linspace(0, order.size - 1, 2 * max_groups).round().astype(int)]
-    t = assoc.times[order]
     pps = []
-    for part in (order[t <= np.median(t)], order[t > np.median(t)]):
+    for part in split_halves(assoc, order):
         prob = refined_problem(assoc, np.sort(part), cameras, cfg, kw, "s2")
         try:
             cams = solve(prob, with_iterations(cfg, cfg.spread_iterations),

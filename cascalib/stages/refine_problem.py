@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cascalib.camera import Camera
+from cascalib.errors import RefinementFailed
 from cascalib.geometry import norm_xy
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association
@@ -207,7 +208,20 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa
     -------
     cameras, points, info, graph, values
         Refined cameras and joints (S, J, 3), the last SolveInfo, graph and gtsam Values.
+
+    Raises
+    ------
+    RefinementFailed
+        If a camera sees none of the person-frames (nothing would constrain it), or the solve
+        fails (:func:`~cascalib.stages.refine_graph.optimize`).
     """
+    seen = prob.projected(cfg.min_confidence).any(-1).sum(0)  # (C,) person-frames
+    blind = [prob.cameras[c].name for c in np.flatnonzero(seen == 0)]
+    if blind:
+        raise RefinementFailed(f"sees none of the {prob.obs.shape[0]} person-frames of this "
+                               f"solve (nothing constrains it)" + (
+                                   f"; nor do {', '.join(blind[1:])}" if blind[1:] else ""),
+                               camera=blind[0])
     values = initial_values(prob)
     for _ in range(max_stages):
         graph = build_graph(prob, cfg)

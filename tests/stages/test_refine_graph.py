@@ -335,3 +335,22 @@ def test_principal_point_update_takes_targets_from_the_pass(scene):
     off = cfg.model_copy(update={"principal_point_updates": 0})
     assert settle_principal_points(assoc, np.arange(assoc.n_groups), res, off, kw, joints,
                                    h)[2] is res
+
+
+def test_a_camera_that_sees_nobody_is_named_not_a_gtsam_error(scene):
+    """A solve whose person-frames one camera never sees (it started recording late) has
+    nothing to constrain that camera: gtsam's ordering then names a variable in no factor
+    (a ValueError from deep inside the optimiser). The solve says which camera instead."""
+    cams = list(scene.truth)
+    prob = _problem(scene, cams, RefineConfig(), n=10)
+    prob.obs[:, 2] = np.nan  # camera 2 sees none of these person-frames
+    with pytest.raises(RefinementFailed) as err:
+        solve(prob, RefineConfig())
+    assert err.value.camera == cams[2].name
+    # below solve(), gtsam's ValueError is no longer fatal: the points-first ordering that
+    # names the unseen pose fails, the COLAMD ordering leaves that camera where it was
+    graph, values = build_graph(prob, RefineConfig()), initial_values(prob)
+    for method in ("gauss-newton", "levenberg-marquardt"):
+        out, _ = optimize(graph, values, RefineConfig(), method=method)
+        assert out.atPose3(X(2)).equals(values.atPose3(X(2)), 1e-12)
+        assert not out.atPose3(X(1)).equals(values.atPose3(X(1)), 1e-9)
