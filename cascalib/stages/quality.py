@@ -12,7 +12,8 @@ weight (the measured whitened residual spread, so a wrong ``sigma_px`` is correc
 The principal point trades against the camera's rotation to first order (only the perspective
 across the image tells them apart), which the marginals of one solve understate. When it is
 estimated, its spread between the two halves of the recording (a split-half standard error)
-adds ``atan(se / f)`` to the rotation uncertainty.
+adds ``atan(se / f)`` to the rotation uncertainty; once a lens-distortion model is estimated,
+the principal point (estimated without it) counts as uncertain as its prior.
 """
 
 from __future__ import annotations
@@ -120,7 +121,8 @@ def assess_camera(camera: Camera, errors_px: NDArray[np.float64], sigmas: dict[s
         Reprojection errors of all its associated observations (inf for points behind it).
     sigmas : dict
         Marginal 1-sigma ``focal`` (px), ``rotation`` (deg), ``position`` (m); optionally
-        ``principal_point`` (px, split-half standard error, not scaled), added to the rotation,
+        ``principal_point`` (px, split-half standard error, or the prior's sd where a lens
+        model was estimated; not scaled), added to the rotation,
         and ``time_offset`` (1-sigma of the time offset in reference frames, already calibrated:
         see ``RefineConfig.time_uncertainty_inflation``; not scaled).
     scale : float

@@ -434,6 +434,31 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
+def _lens_floor(pp_se: NDArray[np.float64], cameras: list[Camera], fixed: Collection[int],
+                cfg: RefineConfig) -> NDArray[np.float64]:
+    """The principal points' uncertainty (px, (C,)) once the lens pass is kept: at least the
+    prior's sd (``principal_point_sigma`` of the image width).
+
+    The principal-point pass, and the split halves that measure its spread, solve without a
+    lens model, which the held-out person-frames have just asked for: the radial terms they
+    lacked went partly into the principal points (the lens pass then holds them), and both
+    halves lack them alike, so their spread misses that error. Measured on the simulator's
+    phones and security rigs (60 s whole-cascade scenes): at seed 0, principal points 11-68
+    px off, split-half standard errors 0.8-10.5 px, rotations 1.0-3.3 deg off (relative to
+    the reference camera) with a reported 1-sigma of 0.13-0.42 deg, every camera "accepted"
+    (up to 17 combined sigmas); with this floor, at seeds 0-2 (the 5 of 6 rigs Stage V
+    solved: principal points 6-91 px off, rotations up to 6.5 deg), 1-sigma 1.0-2.5 deg,
+    every camera "suspicious", the largest error 2.2 combined sigmas. Known intrinsics
+    (``fixed``) keep theirs.
+    """
+    prior = np.array([cfg.principal_point_sigma * cam.image_size[0] for cam in cameras])
+    out = np.maximum(pp_se, prior)
+    out[list(fixed)] = pp_se[list(fixed)]
+    log.info("lens model kept: the principal points are as uncertain as their prior (%s px)",
+             ", ".join(f"{v:.0f}" for v in out))
+    return out
+
+
 @one_blas_thread
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
@@ -489,6 +514,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
     fit, pp = _principal_point_pass(run, fit)
+    estimated = pp  # the last kept pass: the principal points the cameras carry
     for _ in range(cfg.principal_point_reruns):
         if pp is None or pp.moved_deg <= cfg.principal_point_rerun_deg:
             break
@@ -498,13 +524,18 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         prog.total += 3
         fit = _solve_rounds(run, pp.fit.cameras, least=1, most=1, refined=True)
         fit, pp = _principal_point_pass(run, fit)
+        estimated = pp or estimated
     prog.step()
     pp_se = None
-    if pp is not None:
+    if estimated is not None:
         # the split halves start where the pass did (their spread is the pass's, not the
-        # update's); nothing after them depends on the pass having run first
-        pp_se = principal_point_spread(pp.start.assoc, pp.chosen, pp.start.cameras, cfg,
-                                       pp.start.kw, max_groups=cfg.spread_groups)
+        # update's); nothing after them depends on the pass having run first. A rerun whose
+        # own pass was not kept leaves the cameras at the earlier pass's principal points
+        # (its round held them there): their spread is that pass's
+        pp_se = principal_point_spread(estimated.start.assoc, estimated.chosen,
+                                       estimated.start.cameras, cfg, estimated.start.kw,
+                                       max_groups=cfg.spread_groups)
+    if pp is not None:
         fit = pp.fit
     distortion = False
     if cfg.distortion != "never":
@@ -518,6 +549,10 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
             run.solves.append(info)
             fit = replace(fit, cameras=cameras, graph=graph, values=values, prob=prob)
             distortion = True
+            # where the principal-point pass was not kept, the principal points sit at the
+            # image centre, no better known
+            pp_se = _lens_floor(np.zeros(len(cameras)) if pp_se is None else pp_se, cameras,
+                                run.fixed, cfg)
     prog.step()
     cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
     if prob.obs.shape[0] > cfg.max_groups:
