@@ -67,58 +67,13 @@ from cascalib.stages.refine_problem import (
     solve,
     track_targets,
 )
+from cascalib.stages.refine_result import RefineResult, with_failed_camera
 from cascalib.stages.time_refine import refine_offsets
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
 
 log = logging.getLogger(__name__)
-
-@dataclass(frozen=True)
-class RefineResult:
-    """Outcome of stage V.
-
-    Attributes
-    ----------
-    calibration : Calibration
-        Refined cameras (same order as the input), ``quality`` filled per camera.
-    poses3d : ndarray, shape (T, P, 26, 3)
-        Triangulated canonical joints at reference frames ``times`` (NaN where unknown); slots are
-        ordered by person track.
-    times : ndarray, shape (T,)
-        Reference frames of ``poses3d``.
-    track_ids : ndarray of int, shape (T, P)
-        Person track of each slot of ``poses3d`` (-1 for empty slots).
-    quality : dict of str to CameraQuality
-        Per-camera report.
-    association : Association
-        The final cross-view association.
-    solves : list of SolveInfo
-        One per step, in order: each round, the principal-point pass (as its update left it)
-        and the distortion pass when they are kept. Each is the last Levenberg-Marquardt run
-        of that step's graduated solve (error before / after, iterations, seconds of that run
-        alone); earlier graduated stages, a pass its update replaced and the split-half check
-        of the principal point are not listed, so their seconds sum to less than the time
-        spent in gtsam.
-    distortion : bool
-        Whether the final cameras carry an estimated principal point and distortion.
-    n_selected : int
-        Person-frames in the last graph.
-    residuals : ndarray, shape (T, P, 26), optional
-        Mean reprojection error (px) of each joint of ``poses3d`` over its cameras.
-    """
-
-    calibration: Calibration
-    poses3d: NDArray[np.float64]
-    times: NDArray[np.float64]
-    track_ids: NDArray[np.int64]
-    quality: dict[str, CameraQuality]
-    association: Association
-    solves: list[SolveInfo] = field(default_factory=list)
-    distortion: bool = False
-    n_selected: int = 0
-    residuals: NDArray[np.float64] | None = None
-
 
 def _select(assoc: Association, sizes: list[tuple[int, int]], n: int,
             joints: NDArray[np.int64], cfg: RefineConfig) -> NDArray[np.int64]:
@@ -494,10 +449,43 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     InputError
         If a camera of ``initial`` has no tracks.
     RefinementFailed
-        If too few people are seen by two cameras or the solve fails.
+        If too few people are seen by two cameras, the reference camera sees none of the
+        person-frames, or the solve fails. A non-reference camera that sees none of them (its
+        time offset or pose from stages II-IV is wrong) does not stop the rest: they are refined
+        without it, and it comes back as stages I-IV left it, with the verdict "failed" and
+        the reason.
     """
     cfg = config or RefineConfig()
     rng = np.random.default_rng(rng)
+    shown = [0.0]  # a retry starts its steps again: progress never goes back
+
+    def monotone(fraction: float) -> None:
+        shown[0] = max(shown[0], fraction)
+        if progress is not None:
+            progress(shown[0])
+
+    try:
+        return _refine_rig(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics)
+    except RefinementFailed as exc:
+        bad = exc.camera
+        if bad not in initial.names or bad == initial.reference_camera or len(initial) <= 2:
+            raise
+        log.warning("camera %s: %s; the other cameras are refined without it", bad, exc.message)
+        rest = Calibration([c for c in initial.cameras if c.name != bad],
+                           reference_camera=initial.reference_camera,
+                           quality=dict(initial.quality), world=initial.world)
+        res = refine([t for t in tracks if t.camera != bad], rest, cfg, height=height, rng=rng,
+                     progress=monotone,
+                     fixed_intrinsics=[n for n in fixed_intrinsics if n != bad])
+        return with_failed_camera(res, initial, bad, f"left out of the refinement (kept as "
+                                  f"stages I-IV left it): it {exc.message}; check its time "
+                                  "offset and pose from stages II-IV")
+
+
+def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, height: float,
+                rng: np.random.Generator, progress: Callable[[float], None],
+                fixed_intrinsics: Collection[str]) -> RefineResult:
+    """:func:`refine` of every camera of ``initial``, or RefinementFailed."""
     min_rounds, max_rounds = _round_limits(cfg)
     # steps: 3 per round, the two intrinsics passes, the reconstruction
     prog = _Progress(progress, 3 * min_rounds + 3)

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from refine_scene import make_scene, perturb
 
+from cascalib.calibration import Calibration
+from cascalib.geometry import rotation_angle_deg
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
 from cascalib.stages.frame_selection import select_groups
@@ -703,3 +705,46 @@ def test_a_kept_lens_model_leaves_the_principal_points_as_uncertain_as_their_pri
     floored = _lens_floor(np.array([1.0, 50.0, 0.0, 2.0]), cams, {2}, cfg)
     prior = np.array([cfg.principal_point_sigma * c.image_size[0] for c in cams])
     np.testing.assert_allclose(floored, [prior[0], max(50.0, prior[1]), 0.0, prior[3]])
+
+
+def test_a_camera_no_person_frame_shows_fails_alone():
+    """A camera whose clock from stages II-IV is far off sees none of the persons the others
+    see: the other cameras are refined without it, and it comes back as it was, "failed" with
+    the reason, its association column empty; progress never goes back. The reference camera
+    cannot be left out."""
+    from cascalib.errors import RefinementFailed
+
+    scene = make_scene(n_frames=40, n_persons=2, noise_px=0.5, offsets=(0, 0, 0, 0), seed=4)
+    start = perturb(scene.truth, rot_deg=0.5, pos_m=0.05, focal_rel=0.01, offset_frames=0.0)
+    lost = start.cameras[2].with_(time_offset=start.cameras[2].time_offset + 500.0)
+    cams = [lost if c.name == lost.name else c for c in start.cameras]
+    bad = Calibration(cams, reference_camera=start.reference_camera, world=start.world)
+    cfg = RefineConfig(max_groups=40, intrinsics_groups=60, distortion="never",
+                       principal_point="never", refine_time=False, n_rounds=2)
+    fractions = []
+    res = refine(scene.tracks, bad, cfg, height=float(scene.heights.mean()), rng=0,
+                 progress=fractions.append)
+    assert res.calibration.names == start.names
+    q = res.quality[lost.name]
+    assert q.verdict == "failed" and "left out of the refinement" in q.reason, q
+    assert res.calibration[lost.name].time_offset == lost.time_offset  # as it came
+    assert res.calibration.quality[lost.name]["verdict"] == "failed"
+    assert res.association.obs.shape[1] == len(start)
+    assert np.isnan(res.association.obs[:, 2]).all()
+    others = [n for n in start.names if n != lost.name]
+    assert all(res.quality[n].verdict != "failed" for n in others)
+    def relative_error(calib, a, b):  # geodesic error of the rotation between two cameras
+        rel, true = calib[a].R @ calib[b].R.T, scene.truth[a].R @ scene.truth[b].R.T
+        return rotation_angle_deg(rel @ true.T)
+
+    pairs = [(a, b) for i, a in enumerate(others) for b in others[i + 1:]]
+    before = max(relative_error(start, a, b) for a, b in pairs)
+    after = max(relative_error(res.calibration, a, b) for a, b in pairs)
+    assert before > 0.5 and after < 0.2, (before, after)  # the others were refined
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    ref = start.reference_camera
+    lost_ref = [c.with_(time_offset=c.time_offset + 500.0) if c.name == ref else c
+                for c in start.cameras]
+    with pytest.raises(RefinementFailed):
+        refine(scene.tracks, Calibration(lost_ref, reference_camera=ref, world=start.world), cfg,
+               height=float(scene.heights.mean()), rng=0)
