@@ -151,7 +151,7 @@ def stage_metrics(res: Any, truth: Any, mapping: dict[str, str] | None) -> dict[
         relative rotation, ``hypot(sigma_camera, sigma_reference)`` (NaN where a sigma is
         missing): about 68 % of them should be <= 1 and 95 % <= 2 if the report is calibrated.
     """
-    from cascalib.metrics import compare_calibrations
+    from cascalib.metrics import compare_calibrations, rotation_error_in_sigmas
 
     to_ref = mapping or {}
     s1 = [abs(100.0 * (sv.to_camera().focal / truth[to_ref.get(name, name)].focal - 1.0))
@@ -161,9 +161,7 @@ def stage_metrics(res: Any, truth: Any, mapping: dict[str, str] | None) -> dict[
     fi = final.summary
     quality = res.refinement.quality
     verdicts = Counter(q.verdict for q in quality.values())
-    ref_sigma = quality[fi.reference_camera].sigma_rotation_deg
-    rot_z = [row.rotation_error_deg / math.hypot(quality[row.camera].sigma_rotation_deg, ref_sigma)
-             for row in final.cameras if row.camera != fi.reference_camera]
+    rot_z = rotation_error_in_sigmas(final, {n: q.sigma_rotation_deg for n, q in quality.items()})
     return {
         "s1_focal_med": float(np.median(s1)) if s1 else math.nan,
         "al_rot_med": al.rotation_error_deg_median, "al_rot_max": al.rotation_error_deg_max,
@@ -173,7 +171,7 @@ def stage_metrics(res: Any, truth: Any, mapping: dict[str, str] | None) -> dict[
         "ctr_max": fi.center_error_similarity_max, "scale": fi.scale_error_pct,
         "off_max": fi.time_offset_error_frames_max, "rate_max": fi.time_rate_error_pct_max,
         "verdicts": [verdicts.get(v, 0) for v in ("accepted", "suspicious", "failed")],
-        "rot_z": [float(z) for z in rot_z],
+        "rot_z": rot_z,
     }
 
 

@@ -37,7 +37,7 @@ from align_scene import (  # noqa: E402
     stage1_like,
 )
 
-from cascalib.metrics import compare_calibrations  # noqa: E402
+from cascalib.metrics import compare_calibrations, rotation_error_in_sigmas  # noqa: E402
 from cascalib.simulate import simulate  # noqa: E402
 from cascalib.stages.align import align_cameras  # noqa: E402
 from cascalib.stages.refine import refine  # noqa: E402
@@ -87,10 +87,8 @@ def run_scene(preset: str, seed: int, *, errors: bool, with_refine: bool = False
         rot_v = [err_v.summary.pairwise_rotation_error_deg_max]
         # each camera's rotation error (relative to the reference) in units of the quality
         # report's 1-sigma of that relative rotation: whether the report can be trusted
-        ref_sigma = result_v.quality[truth.reference_camera].sigma_rotation_deg
-        rot_z_v = [r.rotation_error_deg
-                   / np.hypot(result_v.quality[r.camera].sigma_rotation_deg, ref_sigma)
-                   for r in rows_v]
+        rot_z_v = rotation_error_in_sigmas(
+            err_v, {n: q.sigma_rotation_deg for n, q in result_v.quality.items()})
         # the quality report's 1-sigma of each offset, in units of which the error is counted
         z_v = [abs(r.time_offset_error_frames)
                / result_v.quality[r.camera].sigma_time_offset_frames for r in rows_v]

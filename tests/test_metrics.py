@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from cascalib import Calibration, CalibrationFileError, Camera
 from cascalib.camera import look_at
 from cascalib.geometry import rot_z
-from cascalib.metrics import compare_calibrations, reprojection_stats
+from cascalib.metrics import compare_calibrations, reprojection_stats, rotation_error_in_sigmas
 
 
 def rig(n: int = 4, *, seed: int = 0, world: str = "z-up, ground z=0") -> Calibration:
@@ -101,6 +101,20 @@ def test_five_degree_perturbation_of_one_camera(axis):
     res = compare_calibrations(est, truth)
     np.testing.assert_allclose([r.rotation_error_deg for r in res.cameras], [0, 5, 5, 5],
                                atol=1e-9)
+
+
+def test_rotation_errors_in_units_of_the_reported_sigmas():
+    truth = rig()
+    dR = Rotation.from_rotvec(np.radians(3) * np.array([0.0, 1.0, 0.0])).as_matrix()
+    c2 = truth["c2"]
+    res = compare_calibrations(perturbed(truth, "c2", R=dR @ c2.R, t=-(dR @ c2.R) @ c2.center),
+                               truth)
+    sigma = {"c0": 0.3, "c1": 0.4, "c2": 0.4, "c3": np.nan}
+    z = rotation_error_in_sigmas(res, sigma)  # c1, c2, c3: the reference c0 is left out
+    assert len(z) == 3
+    assert z[0] == pytest.approx(0.0, abs=1e-9)
+    assert z[1] == pytest.approx(3.0 / 0.5, rel=1e-9)  # hypot(0.4, 0.3) = 0.5
+    assert np.isnan(z[2])
 
 
 def test_rotation_error_is_geodesic_not_a_difference_of_angles():
