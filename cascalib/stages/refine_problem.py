@@ -225,7 +225,8 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa
     values = initial_values(prob)
     for _ in range(max_stages):
         graph = build_graph(prob, cfg)
-        values, info = optimize(graph, values, cfg, method=method)
+        values, info = optimize(graph, values, cfg, method=method,
+                                names=[c.name for c in prob.cameras])
         cameras, points = unpack(values, prob)
         if prob.sigma_px <= cfg.sigma_px:
             break

@@ -354,3 +354,28 @@ def test_a_camera_that_sees_nobody_is_named_not_a_gtsam_error(scene):
         out, _ = optimize(graph, values, RefineConfig(), method=method)
         assert out.atPose3(X(2)).equals(values.atPose3(X(2)), 1e-12)
         assert not out.atPose3(X(1)).equals(values.atPose3(X(1)), 1e-9)
+
+
+def test_points_behind_a_camera_are_one_log_line_not_output(capfd, caplog):
+    """gtsam's reprojection factor prints a CheiralityException line to standard output each
+    time it meets its point behind the camera; a solve sums them up in one log line that names
+    the camera, and prints nothing."""
+    graph = gtsam.NonlinearFactorGraph()
+    cal = gtsam.Cal3_S2(500, 500, 0, 320, 240)
+    values = gtsam.Values()
+    for c, z in enumerate((5.0, -5.0)):  # the point is in front of X(0) and behind X(1)
+        graph.add(gtsam.GeneralSFMFactor2Cal3_S2(gtsam.Point2(320, 240),
+                                                 gtsam.noiseModel.Isotropic.Sigma(2, 1.0),
+                                                 X(c), P(0), K(c)))
+        pose = gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, -z + 5.0]))
+        graph.add(gtsam.PriorFactorPose3(X(c), pose, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+        graph.add(gtsam.PriorFactorCal3_S2(K(c), cal, gtsam.noiseModel.Isotropic.Sigma(5, 1e-3)))
+        values.insert(X(c), pose)
+        values.insert(K(c), cal)
+    values.insert(P(0), np.array([0.1, 0.0, 5.0]))
+    with caplog.at_level("INFO", logger="cascalib.stages.refine_graph"):
+        optimize(graph, values, RefineConfig(), names=["front", "back"])
+    assert "CheiralityException" not in capfd.readouterr().out
+    summary = [r.getMessage() for r in caplog.records if "behind its camera" in r.getMessage()]
+    assert len(summary) == 1
+    assert "back:" in summary[0] and "front" not in summary[0]

@@ -1,0 +1,55 @@
+"""What compiled code prints to the process's standard output, captured.
+
+gtsam's C++ factors report some conditions by printing them straight to file descriptor 1,
+past Python's ``sys.stdout``: a ``GeneralSFMFactor2`` whose 3D point is behind its camera prints
+``CheiralityException: Landmark p1004 behind Camera x2`` every time it is evaluated. A solve that
+meets one evaluates it at every iteration and every damping trial: 199 such lines in one Stage V
+run of a simulated phone rig (60 s, a camera whose clock stage III had put 1418 frames off),
+burying the command line's progress bar and a worker's log. Python cannot catch them (they are
+not exceptions by then), so the file descriptor itself is pointed at a temporary file while the
+library runs, and the caller decides what the lines mean.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["captured_stdout_fd"]
+
+
+@contextmanager
+def captured_stdout_fd() -> Iterator[list[str]]:
+    """Capture everything written to file descriptor 1 while the block runs.
+
+    Yields a list that holds the captured lines once the block has ended (also when it raised).
+    Python's own ``sys.stdout`` is flushed on entry and exit, so that text it buffered keeps
+    its place (where it writes to file descriptor 1, text printed inside the block is captured
+    too). Where file descriptor 1 is not open, nothing is captured and the list stays empty.
+
+    File descriptors belong to the process: a thread that writes to standard output while the
+    block runs is captured too. cascalib's stage V runs its solves on one thread, and the
+    service runs each job in its own process.
+    """
+    lines: list[str] = []
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no standard output to capture
+        yield lines
+        return
+    try:
+        with tempfile.TemporaryFile() as tmp:
+            os.dup2(tmp.fileno(), 1)
+            try:
+                yield lines
+            finally:
+                sys.stdout.flush()
+                os.dup2(saved, 1)
+                tmp.seek(0)
+                lines.extend(tmp.read().decode(errors="replace").splitlines())
+    finally:
+        os.close(saved)
