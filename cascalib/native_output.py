@@ -12,13 +12,18 @@ library runs, and the caller decides what the lines mean.
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections import Counter
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-__all__ = ["captured_stdout_fd"]
+__all__ = ["captured_stdout_fd", "points_behind_reported"]
+
+log = logging.getLogger(__name__)
 
 
 @contextmanager
@@ -53,3 +58,39 @@ def captured_stdout_fd() -> Iterator[list[str]]:
                 lines.extend(tmp.read().decode(errors="replace").splitlines())
     finally:
         os.close(saved)
+
+
+#: gtsam's message for a reprojection factor whose point is behind its camera, printed by the C++
+#: factor to standard output at every evaluation (the factor counts as zero error meanwhile);
+#: cameras are the keys X(c), which gtsam prints as "x<c>"
+_BEHIND = re.compile(r"CheiralityException: Landmark \S+ behind Camera (x(\d+)|\S+)")
+
+
+@contextmanager
+def points_behind_reported(names: Sequence[str], what: str) -> Iterator[None]:
+    """Run gtsam with its standard output captured, and sum its CheiralityException lines up
+    in one INFO line of this module's log, prefixed by ``what``: how often a 3D point was
+    behind each camera (``names`` in the order of the camera keys X(c); without a name, the
+    key). Anything else gtsam printed is passed on to standard output unchanged."""
+    lines: list[str] = []
+    try:
+        with captured_stdout_fd() as lines:
+            yield
+    finally:
+        behind: Counter[str] = Counter()
+        other = []
+        for line in lines:
+            m = _BEHIND.search(line)
+            if m is None:
+                other.append(line)
+            elif m.group(2) is not None and int(m.group(2)) < len(names):
+                behind[names[int(m.group(2))]] += 1
+            else:
+                behind[m.group(1)] += 1
+        if other:
+            sys.stdout.write("\n".join(other) + "\n")
+            sys.stdout.flush()
+        if behind:
+            log.info("%s: a 3D joint was behind its camera in %d evaluations of reprojection "
+                     "terms (%s); gtsam counts such a term as zero error while it is", what,
+                     sum(behind.values()), ", ".join(f"{n}: {k}" for n, k in behind.most_common()))

@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from cascalib.native_output import captured_stdout_fd
+from cascalib.native_output import captured_stdout_fd, points_behind_reported
 
 
 def test_writes_to_the_descriptor_are_captured_and_it_is_restored(capfd):
@@ -25,3 +25,16 @@ def test_the_descriptor_is_restored_when_the_block_raises(capfd):
     os.write(1, b"visible\n")
     assert lines == ["partial"]
     assert capfd.readouterr().out == "visible\n"
+
+
+def test_points_behind_become_one_log_line_and_other_output_passes(capfd, caplog):
+    with caplog.at_level("INFO", logger="cascalib.native_output"), \
+            points_behind_reported(["left", "right"], "solve"):
+        os.write(1, b"CheiralityException: Landmark p3 behind Camera x1\n"
+                    b"a message of the library's own\n"
+                    b"CheiralityException: Landmark p7 behind Camera x1\n"
+                    b"CheiralityException: Landmark p7 behind Camera l4\n")
+    assert capfd.readouterr().out == "a message of the library's own\n"
+    (record,) = [r for r in caplog.records if "behind its camera" in r.getMessage()]
+    assert record.getMessage().startswith("solve: a 3D joint was behind its camera in 3 ")
+    assert "(right: 2, l4: 1)" in record.getMessage()

@@ -35,12 +35,8 @@ call inside gtsam's optimisers, which grows with the square of the problem):
 from __future__ import annotations
 
 import logging
-import re
-import sys
 import time
-from collections import Counter
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -51,7 +47,7 @@ from numpy.typing import NDArray
 
 from cascalib.camera import Camera
 from cascalib.errors import RefinementFailed
-from cascalib.native_output import captured_stdout_fd
+from cascalib.native_output import points_behind_reported
 from cascalib.stages.refine_config import RefineConfig
 from cascalib.stages.torso_lean import TORSO
 
@@ -412,41 +408,6 @@ def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return result, opt.iterations(), before, opt.error()
 
 
-#: gtsam's message for a reprojection factor whose point is behind its camera, printed by the C++
-#: factor to standard output at every evaluation (the factor counts as zero error meanwhile);
-#: cameras are the keys X(c), which gtsam prints as "x<c>"
-_BEHIND = re.compile(r"CheiralityException: Landmark \S+ behind Camera (x(\d+)|\S+)")
-
-
-@contextmanager
-def _points_behind_reported(names: Sequence[str], what: str) -> Iterator[None]:
-    """Run gtsam with its standard output captured, and sum its CheiralityException lines up
-    in one log line: how often a 3D joint was behind each camera (``names`` by camera index).
-    Anything else gtsam printed is passed on to standard output unchanged."""
-    lines: list[str] = []
-    try:
-        with captured_stdout_fd() as lines:
-            yield
-    finally:
-        behind: Counter[str] = Counter()
-        other = []
-        for line in lines:
-            m = _BEHIND.search(line)
-            if m is None:
-                other.append(line)
-            elif m.group(2) is not None and int(m.group(2)) < len(names):
-                behind[names[int(m.group(2))]] += 1
-            else:
-                behind[m.group(1)] += 1
-        if other:
-            sys.stdout.write("\n".join(other) + "\n")
-            sys.stdout.flush()
-        if behind:
-            log.info("%s: a 3D joint was behind its camera in %d evaluations of reprojection "
-                     "terms (%s); gtsam counts such a term as zero error while it is", what,
-                     sum(behind.values()), ", ".join(f"{n}: {k}" for n, k in behind.most_common()))
-
-
 def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: RefineConfig, *,
              method: Solver = "levenberg-marquardt", names: Sequence[str] = ()
              ) -> tuple[gtsam.Values, SolveInfo]:
@@ -476,7 +437,7 @@ def optimize(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Refin
         If gtsam fails (indeterminate system, a variable in no factor, NaN) or the error does
         not decrease.
     """
-    with _points_behind_reported(names, "bundle adjustment"):
+    with points_behind_reported(names, "bundle adjustment"):
         return _optimize(graph, values, cfg, method)
 
 
@@ -588,7 +549,7 @@ def marginal_sigmas(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, pro
     """
     nan = dict(focal=np.nan, rotation=np.nan, position=np.nan)
     try:
-        with _points_behind_reported([c.name for c in prob.cameras], "marginals"):
+        with points_behind_reported([c.name for c in prob.cameras], "marginals"):
             marg = gtsam.Marginals(_shape_graph(graph, values, prob), values)
     except RuntimeError as exc:
         log.warning("marginal covariances unavailable: %s", exc)

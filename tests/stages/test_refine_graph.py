@@ -373,7 +373,7 @@ def test_points_behind_a_camera_are_one_log_line_not_output(capfd, caplog):
         values.insert(X(c), pose)
         values.insert(K(c), cal)
     values.insert(P(0), np.array([0.1, 0.0, 5.0]))
-    with caplog.at_level("INFO", logger="cascalib.stages.refine_graph"):
+    with caplog.at_level("INFO", logger="cascalib.native_output"):
         optimize(graph, values, RefineConfig(), names=["front", "back"])
     assert "CheiralityException" not in capfd.readouterr().out
     summary = [r.getMessage() for r in caplog.records if "behind its camera" in r.getMessage()]
