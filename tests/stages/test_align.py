@@ -73,11 +73,13 @@ def test_periodic_loops_with_lap_variability_are_resolved() -> None:
     assert_aligned(res, sc, offset_tol=0.5)
 
 
-@pytest.mark.parametrize(("seed", "wrong_camera"), [(1, "cam3"), (2, "cam3")])
+@pytest.mark.parametrize(("seed", "wrong_camera"), [(1, "cam3")])
 def test_people_walking_circles_all_cameras_synchronised(seed: int, wrong_camera: str) -> None:
     # the simulator's periodic preset: 3 people on nearly concentric circles at constant
     # speed, two of them with laps of 9.8 and 10.1 s (seed 1). Two of the camera's three pairs
     # then rank a lap-off peak first and outvote the right pair; the camera vote finds it.
+    # (Seed 2 was such a case too until the evidence counted overlaps up to 20 s, not 10:
+    # its pairs now rank the right peak first.)
     tracks, truth, plane = simulated_windows("periodic", seed, errors=False)
     before = align_cameras(tracks, plane, AlignConfig(camera_vote=False), rng=seed)
     err = {r.camera: r for r in compare_calibrations(before.calibration, truth,
@@ -99,10 +101,12 @@ def test_exactly_periodic_motion_is_flagged_not_trusted() -> None:
 
 
 def test_epipolar_check_picks_the_lap_of_a_single_walker() -> None:
-    """One person walking a wobbly circle (bench_sync.py's table 2b, subject 4, same clocks):
-    the ground evidence favours a candidate three quarters of a lap off, the joints' epipolar
-    geometry the right one; the camera stays flagged ambiguous either way."""
-    tracks, plane, true_offset = paper_walker_scene(0, 4)
+    """One person walking a wobbly circle (bench_sync.py's table 2b, subject 4, the second
+    video 150 frames later): the ground evidence favours a candidate three quarters of a lap
+    off, the joints' epipolar geometry the right one; the camera stays flagged ambiguous
+    either way. (The same subject with equal clocks was such a case until the ground evidence
+    counted overlaps up to 20 s, not 10.)"""
+    tracks, plane, true_offset = paper_walker_scene(150, 4)
     res = align_cameras(tracks, plane, rng=4)
     assert res.calibration.cameras[1].time_offset == pytest.approx(true_offset, abs=0.5)
     assert res.flags["cam1"] == ["ambiguous"]
@@ -154,3 +158,27 @@ def test_camera_seeing_nobody_is_flagged_not_fatal() -> None:
     assert "not_aligned" in res.flags["cam2"]
     assert res.confidence["cam2"] == 0.0
     assert res.calibration["cam1"].time_offset == pytest.approx(30.0, abs=0.25)
+
+
+def test_a_short_coincidence_does_not_outscore_the_whole_recording() -> None:
+    """Simulator phones preset, seed 2, 60 s, stage I as the pipeline runs it: cam3 looks
+    almost level (pitch about 1 deg), so its ground tracks are poor (ICP rms 0.5-0.6 m at the
+    right clock). With the evidence of an overlap capped at 10 s, a 13 s coincidence 1418
+    frames off (one pair's top candidate) outscored the whole minute on the sum of cam3's
+    three pairs (0.98 against 0.86), although its two other pairs agreed on the right clock;
+    capped at 20 s, the 13 s count sqrt(13 / 20) of a full overlap."""
+    from cascalib.simulate import simulate
+    from cascalib.stages.single_view import calibrate_single_view
+
+    sc = simulate("phones", seed=2, duration_s=60.0)
+    rng = np.random.default_rng(0)
+    plane = [calibrate_single_view(t, rng=rng).to_camera() for t in sc.tracks]
+
+    def offset_errors(cfg: AlignConfig) -> dict[str, float]:
+        res = align_cameras(sc.tracks, plane, cfg, reference=0, rng=np.random.default_rng(1))
+        return {r.camera: r.time_offset_error_frames
+                for r in compare_calibrations(res.calibration, sc.truth, ground=True).cameras}
+
+    assert abs(offset_errors(AlignConfig(evidence_seconds=10.0))["cam3"]) > 1000
+    for camera, err in offset_errors(AlignConfig()).items():
+        assert abs(err) < 0.5, camera
