@@ -40,7 +40,7 @@ def captured_stdout_fd() -> Iterator[list[str]]:
     service runs each job in its own process.
     """
     lines: list[str] = []
-    sys.stdout.flush()
+    _flush_stdout()
     try:
         saved = os.dup(1)
     except OSError:  # no standard output to capture
@@ -52,12 +52,18 @@ def captured_stdout_fd() -> Iterator[list[str]]:
             try:
                 yield lines
             finally:
-                sys.stdout.flush()
+                _flush_stdout()
                 os.dup2(saved, 1)
                 tmp.seek(0)
                 lines.extend(tmp.read().decode(errors="replace").splitlines())
     finally:
         os.close(saved)
+
+
+def _flush_stdout() -> None:
+    """Flush Python's standard output, where there is one (None under some launchers)."""
+    if sys.stdout is not None:
+        sys.stdout.flush()
 
 
 #: gtsam's message for a reprojection factor whose point is behind its camera, printed by the C++
@@ -87,9 +93,9 @@ def points_behind_reported(names: Sequence[str], what: str) -> Iterator[None]:
                 behind[names[int(m.group(2))]] += 1
             else:
                 behind[m.group(1)] += 1
-        if other:
+        if other and sys.stdout is not None:
             sys.stdout.write("\n".join(other) + "\n")
-            sys.stdout.flush()
+            _flush_stdout()
         if behind:
             log.info("%s: a 3D joint was behind its camera in %d evaluations of reprojection "
                      "terms (%s); gtsam counts such a term as zero error while it is", what,
