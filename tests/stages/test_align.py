@@ -114,6 +114,19 @@ def test_epipolar_check_picks_the_lap_of_a_single_walker() -> None:
     assert abs(ground_only.calibration.cameras[1].time_offset - true_offset) > 100
 
 
+def test_a_lowest_clock_near_the_window_edge_is_searched_wider() -> None:
+    """The paper's walker, subject 5 at equal clocks: stage III leaves the second camera 1.37
+    frames late. The epipolar search's lowest sample (+-1.5 frames) is then inside the window
+    but its end at -1.5 costs within 0.1 % of it: a curve rising on one side only is searched
+    over twice the window, not dropped as flat."""
+    tracks, plane, true_offset = paper_walker_scene(0, 5)
+    ground = align_cameras(tracks, plane, AlignConfig(epipolar_sync=False), rng=5)
+    assert abs(ground.calibration.cameras[1].time_offset - true_offset) > 1.0
+    res = align_cameras(tracks, plane, rng=5)
+    assert abs(res.calibration.cameras[1].time_offset - true_offset) < 0.5
+    assert res.epipolar is not None and res.epipolar.accepted["cam1"]
+
+
 def test_reference_by_name_and_rigid_option() -> None:
     sc = make_scene(n_cams=2, n_persons=2, n_ref_frames=500, offsets=[0.0, -40.0], seed=4)
     res = align_cameras(sc.tracks, sc.plane, AlignConfig(estimate_scale=False),
