@@ -6,7 +6,9 @@
 2. for every camera pair: offset candidates from the joint offset/rotation vote
    (:mod:`~cascalib.stages.sync`), each verified by trimmed ICP (:mod:`~cascalib.stages.icp`,
    with the paper's brute-force rotation search of :mod:`~cascalib.stages.rotation` as fallback
-   initialisation); the best is refined to a sub-frame offset, a rate ratio and a 2D similarity;
+   initialisation); the best is refined to a sub-frame offset, a rate ratio and a 2D similarity.
+   An ambiguous pair gets more candidates from an ICP scan of all offsets, and the epipolar
+   geometry of the people's joints decides among its best (:mod:`~cascalib.stages.ambiguous_pairs`);
 3. globally consistent clocks from all pairs (robust L1 over the pair graph, so that one wrong
    pair is outvoted by the cycles through the other cameras) and globally consistent ground
    alignments (robust least squares over every accepted pair's matched points;
@@ -33,15 +35,15 @@ from cascalib.blas import one_blas_thread
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import EstimationFailed, InputError
-from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
 from cascalib.stages.align_global import (
     PairAlignment,
     doubtful_cameras,
     global_alignment,
 )
+from cascalib.stages.ambiguous_pairs import PairJoints, epipolar_choice, scan_candidates
 from cascalib.stages.consensus import CandidateEdge, vote_cameras
-from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks, pair_cost
+from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks
 from cascalib.stages.ground import GroundTracks, ground_trajectories
 from cascalib.stages.icp import (
     IcpResult,
@@ -49,8 +51,16 @@ from cascalib.stages.icp import (
     Similarity2D,
     SyncFit,
     dense_lanes,
-    icp_pair,
     refine_sync,
+)
+from cascalib.stages.pair_evidence import (
+    ambiguity_of,
+    candidate_score,
+    evidence,
+    evidence_sigma,
+    pair_icp,
+    place_camera,
+    plausible,
 )
 from cascalib.stages.reconstruct import prepare
 from cascalib.stages.rotation import rotation_search
@@ -146,55 +156,18 @@ def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) ->
         stance_smooth=cfg.stance_smooth_seconds * rate)
 
 
-@dataclass(frozen=True)
-class _Joints:
-    """What the epipolar check of ambiguous pairs needs: every camera's canonical detections
-    and frame links, its plane-frame camera, its frame-rate ratio to the reference and the
-    person height prior."""
-
-    keypoints: list[NDArray[np.float64]]
-    links: list[NDArray[np.int64]]
-    cameras: list[Camera]
-    rho: list[float]
-    height: float
-
-
-def _epipolar_choice(i: int, j: int, fits: dict[int, SyncFit], joints: _Joints,
-                     cfg: AlignConfig, rng: np.random.Generator
-                     ) -> tuple[int, float] | None:
-    """The candidate whose clock and ground alignment give the lowest epipolar cost of the
-    pair's joints (:func:`~cascalib.stages.epipolar_sync.pair_cost`), and its cost over the
-    runner-up's. None unless two candidates could be compared."""
-    n_i = joints.keypoints[i].shape[0]
-    times = np.linspace(0.0, (n_i - 1) * joints.rho[i], cfg.epipolar_times)
-    cam_i = joints.cameras[i].with_(time_offset=0.0, time_rate=joints.rho[i])
-    costs = {}
-    for k, fit in fits.items():
-        cam_j = _place(joints.cameras[j], fit.transform).with_(
-            time_offset=fit.offset, time_rate=fit.rate * joints.rho[j])
-        found = pair_cost([joints.keypoints[i], joints.keypoints[j]],
-                          [joints.links[i], joints.links[j]], [cam_i, cam_j], times,
-                          height=joints.height, max_points=cfg.epipolar_points, rng=rng)
-        if found is not None:
-            costs[k] = found[0]
-    if len(costs) < 2:
-        return None
-    best, second = sorted(costs, key=costs.__getitem__)[:2]
-    logger.info("pair %d-%d: epipolar costs of the candidates %s", i, j,
-                ", ".join(f"{fits[k].offset:.1f}: {c:.3g}" for k, c in costs.items()))
-    return best, costs[best] / max(costs[second], 1e-300)
-
-
 def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                 lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
                 fps_ref: float, cfg: AlignConfig, rng: np.random.Generator,
-                joints: _Joints | None = None) -> PairAlignment:
+                joints: PairJoints | None = None) -> PairAlignment:
     """Offset candidates, ICP verification and continuous refinement for one pair.
 
-    With ``joints``, an ambiguous pair (runner-up evidence above ``cfg.ambiguity_ratio`` of
-    the best) is decided by the epipolar geometry of the people's joints among its best
-    candidates (:func:`_epipolar_choice`) when that is decisive (cost ratio at most
-    ``cfg.epipolar_decisive``); it stays flagged ambiguous."""
+    An ambiguous pair (runner-up evidence above ``cfg.ambiguity_ratio`` of the best) with a
+    plausible fit gets more candidates from an ICP scan of all offsets; with ``joints``, it is
+    decided by the epipolar geometry of the people's joints among its best candidates when
+    that is decisive (cost ratio at most ``cfg.epipolar_decisive``), and the clock moves to
+    where the joints fit best; it stays flagged ambiguous
+    (:mod:`~cascalib.stages.ambiguous_pairs`)."""
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
     longest = max(coarse[i].length, coarse[j].length) * coarse[i].step
     curve = search_offsets(
@@ -205,27 +178,31 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
         n_candidates=cfg.n_candidates, nms_frames=cfg.nms_seconds * fps_ref)
     offs = [int(round(c.offset)) for c in curve.candidates]
     # quick ICP of every candidate, then the full ICP of those within half of the best
-    results = [_icp(i, j, o, c.angle, lanes, cfg, sr, quick=True)
+    results = [pair_icp(i, j, o, c.angle, lanes, cfg, sr, quick=True)
                for o, c in zip(offs, curve.candidates, strict=True)]
-    if not any(_plausible(r, cfg) for r in results) and curve.candidates:
+    if not any(plausible(r, cfg) for r in results) and curve.candidates:
         # the vote's angle did not lead ICP to a tight fit: the paper's full rotation search
         results[0] = _rotation_fallback(i, j, offs[0], results[0], lanes, cfg, sr, rng)
     full = cfg.evidence_seconds * fps_ref
-    scores = _evidence(results, _evidence_sigma(results, cfg), lanes[i], lanes[j], full)
+    scores = evidence(results, evidence_sigma(results, cfg), lanes[i], lanes[j], full)
+    if (cfg.scan_seconds > 0 and ambiguity_of(scores) > cfg.ambiguity_ratio
+            and any(plausible(r, cfg) for r in results)):
+        curve, results = scan_candidates(i, j, curve, results, lanes, fps_ref, cfg, sr)
+        offs = [int(round(c.offset)) for c in curve.candidates]
+        scores = evidence(results, evidence_sigma(results, cfg), lanes[i], lanes[j], full)
     for k in np.argsort(scores)[::-1][:3]:
         r = results[k]
         if r is not None and scores[k] >= 0.5 * max(scores):
-            results[k] = _icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
-    sig = _evidence_sigma(results, cfg)
-    scores = _evidence(results, sig, lanes[i], lanes[j], full)
+            results[k] = pair_icp(i, j, offs[k], r.transform.angle, lanes, cfg, sr)
+    sig = evidence_sigma(results, cfg)
+    scores = evidence(results, sig, lanes[i], lanes[j], full)
     angles = [r.transform.angle if r is not None else c.angle
               for r, c in zip(results, curve.candidates, strict=True)]
     if not scores or max(scores) <= 0:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0, icp_angles=angles,
                              evidence_sigma=sig)
     k = int(np.argmax(scores))
-    rest = sorted(scores, reverse=True)
-    ambiguity = rest[1] / rest[0] if len(rest) > 1 else curve.peak_ratio
+    ambiguity = ambiguity_of(scores) if len(scores) > 1 else curve.peak_ratio
     best = results[k]
     assert best is not None
     fit = _refine_pair(i, j, int(round(curve.candidates[k].offset)), best, fine, lanes, noise,
@@ -242,12 +219,14 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                                    lanes, noise, fps_ref, cfg, sr, rng)
                 if alt is not None:
                     fits[m] = alt
-        choice = _epipolar_choice(i, j, fits, joints, cfg, rng) if len(fits) > 1 else None
+        choice = epipolar_choice(i, j, fits, joints, cfg, rng) if len(fits) > 1 else None
         if choice is not None and choice[1] <= cfg.epipolar_decisive:
             # the pair keeps its ambiguity (and its flag): the check only compares the
             # candidates it was given, and the true one may not be among them
             k = choice[0]
-            fit = fits[k]
+            # the clock where the joints fit best; the ground alignment stays the ICP's
+            fit = replace(fits[k], offset=fits[k].offset + choice[2],
+                          pivot_offset=fits[k].pivot_offset + choice[2])
     if fit is None:
         return PairAlignment(i, j, curve, scores, -1, None, 1.0, icp_angles=angles,
                              evidence_sigma=sig)
@@ -273,7 +252,7 @@ def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: list[GridTr
         if fit is None or abs(fit.pivot_offset - offset) < 4.0:
             break
         offset = int(round(fit.pivot_offset))
-        moved = _icp(i, j, offset, fit.transform.angle, lanes, cfg, sr)
+        moved = pair_icp(i, j, offset, fit.transform.angle, lanes, cfg, sr)
         if moved is None:
             break
         best = moved
@@ -286,47 +265,9 @@ def _fit_at(i: int, j: int, offset: int, angle: float, fine: list[GridTrack],
             cfg: AlignConfig, sr: float, rng: np.random.Generator, quick: bool = False
             ) -> SyncFit | None:
     """ICP at an integer offset from a rotation, then the sub-frame fit (None if either fails)."""
-    best = _icp(i, j, offset, angle, lanes, cfg, sr, quick=quick)
+    best = pair_icp(i, j, offset, angle, lanes, cfg, sr, quick=quick)
     return None if best is None else _refine_pair(i, j, offset, best, fine, lanes, noise,
                                                   fps_ref, cfg, sr, rng)
-
-
-def _icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
-         sr: float, quick: bool = False) -> IcpResult | None:
-    frames = cfg.icp_max_frames // 4 if quick else cfg.icp_max_frames
-    return icp_pair(lanes[i], lanes[j], offset, angle, sigma=cfg.sigma, gate=cfg.icp_gate,
-                    min_gate=cfg.icp_min_gate, scale_range=sr, trim=cfg.icp_trim,
-                    max_frames=frames, n_iter=8 if quick else 15)
-
-
-def _evidence(results: list[IcpResult | None], sig: float, la: Lanes, lb: Lanes, full: float
-              ) -> list[float]:
-    """ICP evidence (:func:`_score`) of each candidate at residual scale ``sig``."""
-    return [_score(r, sig, la, lb, full) for r in results]
-
-
-def _evidence_sigma(results: list[IcpResult | None], cfg: AlignConfig) -> float:
-    """Residual scale of a pair's evidence: the best candidate's RMS (one lap of a loop off
-    fits to a few decimetres, the true offset to the detection noise)."""
-    rms = [r.rms for r in results if _plausible(r, cfg)]
-    return max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
-
-
-def _score(r: IcpResult | None, sig: float, la: Lanes, lb: Lanes, full: float) -> float:
-    """Evidence per frame compared (so quick, subsampled and full runs are comparable) times
-    sqrt(overlap / full), capped at 1: quality first, and a short overlap counts less (a brief
-    coincidence is likely). Past ``full`` frames length stops counting: a periodic scene's
-    coincidence one lap off lasts as long as the overlap, like the truth, so only the quality
-    of the fit tells them apart. Identities are kept along tracklets
-    (:meth:`IcpResult.evidence`)."""
-    if r is None:
-        return 0.0
-    return (r.evidence(sig, la, lb) / max(1, r.n_frames)
-            * np.sqrt(min(1.0, r.n_overlap / max(full, 1.0))))
-
-
-def _plausible(res: IcpResult | None, cfg: AlignConfig) -> bool:
-    return res is not None and res.rms < 2 * cfg.sigma and res.n_matches >= 30
 
 
 def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: list[Lanes],
@@ -338,7 +279,7 @@ def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes
     if len(pa) < 10 or len(pb) < 10:
         return res
     rs = rotation_search(pa, pb, step_deg=cfg.rotation_step_deg, rng=rng)
-    alt = _icp(i, j, offset, rs.angle, lanes, cfg, sr)
+    alt = pair_icp(i, j, offset, rs.angle, lanes, cfg, sr)
     if res is None or (alt is not None and alt.score > res.score):
         return alt
     return res
@@ -366,9 +307,9 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
         o = int(round(offset))
         key = (i, j, o, int(round(np.degrees(angle) / 5.0)) % 72, full)
         if key not in cache:
-            r = _icp(i, j, o, angle, lanes, cfg, sr, quick=not full)
-            cache[key] = _score(r, by_ij[(i, j)].evidence_sigma, lanes[i], lanes[j],
-                                cfg.evidence_seconds * fps_ref)
+            r = pair_icp(i, j, o, angle, lanes, cfg, sr, quick=not full)
+            cache[key] = candidate_score(r, by_ij[(i, j)].evidence_sigma, lanes[i], lanes[j],
+                                         cfg.evidence_seconds * fps_ref)
         return cache[key]
 
     settled: dict[tuple[int, int, int], tuple[float, float] | None] = {}
@@ -411,14 +352,6 @@ def _vote(n: int, ref: int, pairs: list[PairAlignment], b: NDArray[np.float64],
         amb = max(moved[c].ambiguity for c in (p.i, p.j) if c in moved)
         out.append(replace(p, chosen=near[0] if near else -1, fit=fit, ambiguity=amb))
     return out
-
-
-def _place(cam: Camera, T: Similarity2D) -> Camera:
-    """Move a camera from its own plane frame by ``X' = s Rz X + (t, 0)``."""
-    Rz = rot_z(T.angle)
-    center = T.scale * Rz @ cam.center + np.r_[T.t, 0.0]
-    R = cam.R @ Rz.T
-    return cam.with_(R=R, t=-R @ center)
 
 
 @one_blas_thread
@@ -483,7 +416,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     joints = None
     if cfg.epipolar_candidates > 1:
         data = prepare(tracks, Calibration(plane_cameras))
-        joints = _Joints(data.keypoints, data.links, plane_cameras, rho, height)
+        joints = PairJoints(data.keypoints, data.links, plane_cameras, rho, height, fps_ref)
     pairs = []
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
         for pair in pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
@@ -539,8 +472,8 @@ def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks]
             fl.append("ambiguous")
         if c != ref and acc and agree < 0.5:
             fl.append("inconsistent")
-        cam = _place(cams[c], Tc).with_(fps=fps[c], time_offset=float(b[c]),
-                                        time_rate=float(a[c] * rho[c]))
+        cam = place_camera(cams[c], Tc).with_(fps=fps[c], time_offset=float(b[c]),
+                                              time_rate=float(a[c] * rho[c]))
         if T[c] is None:
             cam = cam.with_(time_offset=0.0, time_rate=float(rho[c]))
         out_cams.append(cam)

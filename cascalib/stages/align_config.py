@@ -102,6 +102,13 @@ class AlignConfig(BaseModel):
     ambiguity_ratio: float = Field(
         0.8, gt=0, le=1, description="A pair whose second-best candidate scores above this "
         "fraction of the best is flagged ambiguous.")
+    scan_seconds: float = Field(
+        0.2, ge=0, description="An ambiguous pair (see ambiguity_ratio) also gets candidates "
+        "from quick ICP at offsets this far apart (s) over the whole overlap: on a walker's "
+        "circle the vote's peaks are the longest overlaps, not the truth. 0 = off.")
+    scan_max_offsets: int = Field(
+        120, ge=2, description="At most this many offsets are scanned per ambiguous pair (the "
+        "step grows beyond scan_seconds on long recordings).")
 
     # -- rotation search and ICP (paper: "2D Rotation Search", "Iterative Closest Point") ------
     estimate_scale: bool = Field(
@@ -162,6 +169,10 @@ class AlignConfig(BaseModel):
         "among those checked). On "
         "bench_sync's table 2b the true candidate's cost was 0.54-0.78 of the next, and one "
         "wrong choice came at 0.95.")
+    epipolar_choice_seconds: float = Field(
+        0.12, ge=0, description="The epipolar check takes each candidate's lowest cost over "
+        "clocks up to this far (s) from its own: on a walker's circle the ground fit leaves "
+        "true candidates a few frames off (a time shift looks like a turn).")
     epipolar_iterations: int = Field(
         2, ge=1, description="Most searches: search, correct and associate again (the "
         "association at the current clocks holds each search a little towards them: a first "

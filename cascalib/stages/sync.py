@@ -92,12 +92,16 @@ class SyncCurve:
         Best peaks, best first.
     peak_ratio : float
         Second-best peak score over the best (1 = ambiguous, 0 = unique).
+    angles : ndarray, shape (n,), optional
+        The rotation (radians, B -> A) of the strongest histogram bin at each offset: a start
+        for ICP at offsets that are not among the candidates.
     """
 
     offsets: NDArray[np.float64]
     score: NDArray[np.float64]
     candidates: list[SyncCandidate]
     peak_ratio: float
+    angles: NDArray[np.float64] | None = None
 
 
 def _smooth(frames: NDArray[np.int64], xy: NDArray[np.float64], sigma: float
@@ -340,7 +344,8 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     ratio = cands[1].score / cands[0].score if len(cands) > 1 and cands[0].score > 0 else 0.0
     logger.debug("sync %s-%s: %d chunks, best offset %.1f (ratio %.2f)", a.camera, b.camera,
                  len(chunks), cands[0].offset if cands else np.nan, ratio)
-    return SyncCurve(offsets, score, cands, float(ratio))
+    angles = (np.argmax(smooth, axis=1) + 0.5) * 2 * np.pi / angle_bins
+    return SyncCurve(offsets, score, cands, float(ratio), np.angle(np.exp(1j * angles)))
 
 
 def _overlap(a: GridTrack, b: GridTrack, n_off: int) -> NDArray[np.float64]:

@@ -114,6 +114,26 @@ def test_epipolar_check_picks_the_lap_of_a_single_walker() -> None:
     assert abs(ground_only.calibration.cameras[1].time_offset - true_offset) > 100
 
 
+def test_a_walkers_circle_is_scanned_when_the_vote_misses_the_truth() -> None:
+    """The paper's walker (bench_sync.py's table 2b, subject 4, the second video 200 frames
+    later). On a circle a time shift looks like a turn, so the vote's peaks are the longest
+    overlaps and the truth is none of them (measured: 144.9 frames off without the scan); the
+    quick ICP scan of the ambiguous pair adds it (ground fit 202.1). That clock is 2.1 frames
+    off, where the joints fit worse than at a lap-off candidate's (10.6 against 9.89); the
+    epipolar check compares each candidate at its best clock nearby (7.44 against 8.68) and
+    moves the pair's clock there."""
+    tracks, plane, true_offset = paper_walker_scene(200, 4)
+
+    def error(**changes: float) -> float:
+        res = align_cameras(tracks, plane, AlignConfig(**changes), rng=4)
+        assert res.flags["cam1"] == ["ambiguous"]
+        return res.calibration.cameras[1].time_offset - true_offset
+
+    assert abs(error()) < 0.5
+    assert abs(error(scan_seconds=0.0)) > 100
+    assert abs(error(epipolar_choice_seconds=0.0)) > 100  # measured 386.7
+
+
 def test_a_lowest_clock_near_the_window_edge_is_searched_wider() -> None:
     """The paper's walker, subject 5 at equal clocks: stage III leaves the second camera 1.37
     frames late. The epipolar search's lowest sample (+-1.5 frames) is then inside the window

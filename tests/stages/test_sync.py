@@ -64,6 +64,11 @@ def test_search_offsets_finds_offset_and_angle(offset: int) -> None:
     far = [c for c in curve.candidates if abs(c.offset - offset) > 40]
     assert all(c.score < 0.5 * best.score for c in far)
     assert curve.score.argmax() == np.argmin(np.abs(curve.offsets - best.offset))
+    # the vote's rotation at every offset (the start of the ambiguous-pair scan's ICP): at
+    # the peak it is the candidate's, to the 10-degree bin
+    assert curve.angles is not None and curve.angles.shape == curve.offsets.shape
+    at_peak = curve.angles[curve.score.argmax()]
+    assert abs(np.angle(np.exp(1j * (at_peak - T.angle)))) < np.radians(10)
 
 
 def test_chunk_fit_equals_direct_procrustes_fit() -> None:
