@@ -159,9 +159,10 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                              rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,
                              rng=rng, sd=sd)
         new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
+        kept = new_cost < cost * (1.0 + cfg.time_tie_tolerance)
         log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
-                 "kept" if new_cost < cost else "rejected")
-        if new_cost >= cost:
+                 "kept" if kept else "rejected")
+        if not kept:
             break
         moved = max(abs(a.time_offset - b.time_offset) for a, b in zip(new, cameras,
                                                                          strict=True))
