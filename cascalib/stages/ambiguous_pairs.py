@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from cascalib.camera import Camera
 from cascalib.stages.align_config import AlignConfig
-from cascalib.stages.epipolar_sync import pair_cost
+from cascalib.stages.epipolar_sync import pair_cost, quadratic_minimum
 from cascalib.stages.icp import IcpResult, Lanes, SyncFit
 from cascalib.stages.pair_evidence import evidence, evidence_sigma, pair_icp, place_camera
 from cascalib.stages.sync import SyncCandidate, SyncCurve
@@ -90,8 +90,9 @@ def epipolar_choice(i: int, j: int, fits: dict[int, SyncFit], joints: PairJoints
 def _lowest_cost(i: int, j: int, fit: SyncFit, joints: PairJoints, cfg: AlignConfig,
                  seed: int) -> tuple[float, float] | None:
     """The lowest epipolar cost of one candidate over clock shifts up to
-    ``cfg.epipolar_choice_seconds`` (steps of two frames, then one beside the lowest, and a
-    parabola's vertex), and the shift; every shift on the same random subset of joints."""
+    ``cfg.epipolar_choice_seconds`` (steps of two frames, then one beside the lowest, and the
+    vertex of the parabola through those three), and the shift; every shift on the same random
+    subset of joints."""
     n_i = joints.keypoints[i].shape[0]
     times = np.linspace(0.0, (n_i - 1) * joints.rho[i], cfg.epipolar_times)
     cam_i = joints.cameras[i].with_(time_offset=0.0, time_rate=joints.rho[i])
@@ -113,17 +114,12 @@ def _lowest_cost(i: int, j: int, fit: SyncFit, joints: PairJoints, cfg: AlignCon
     if reach >= 1:
         tried.update({d: cost(d) for d in (at - 1.0, at + 1.0) if d not in tried})
         at = min(tried, key=tried.__getitem__)
-    return tried[at], at + _vertex(at, tried)
-
-
-def _vertex(at: float, tried: dict[float, float]) -> float:
-    """Sub-step position (within +-1 of ``at``) of a parabola's vertex through the costs at
-    ``at`` and its neighbours one frame away; 0 without both neighbours or on a non-convex
-    triple."""
-    lo, mid, hi = tried.get(at - 1.0), tried[at], tried.get(at + 1.0)
-    if lo is None or hi is None or not np.isfinite(lo + hi) or lo + hi - 2 * mid <= 0:
-        return 0.0
-    return float(np.clip(0.5 * (lo - hi) / (lo + hi - 2 * mid), -1.0, 1.0))
+    shifts = np.array(sorted(tried))
+    costs = np.array([tried[d] for d in shifts])
+    finite = np.isfinite(costs)
+    # the vertex through the lowest and its neighbours a frame away (None: too few, or concave)
+    vertex = quadratic_minimum(shifts[finite], costs[finite], at, 1.0)
+    return tried[at], at if vertex is None else vertex[0]
 
 
 def scan_candidates(i: int, j: int, curve: SyncCurve, results: list[IcpResult | None],

@@ -53,7 +53,7 @@ from cascalib.stages.track_interpolation import interpolate_views, person_distan
 from cascalib.tracks import Tracks
 
 __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
-           "hartley_normalization", "pair_cost", "sampson_distance"]
+           "hartley_normalization", "pair_cost", "quadratic_minimum", "sampson_distance"]
 
 log = logging.getLogger(__name__)
 
@@ -230,7 +230,7 @@ def _pixels(cam: Camera, uv: NDArray[np.float64]) -> NDArray[np.float64]:
     return cam.undistort_pixels(uv) if cam.has_distortion else uv
 
 
-def _quadratic_minimum(x: NDArray[np.float64], y: NDArray[np.float64], centre: float,
+def quadratic_minimum(x: NDArray[np.float64], y: NDArray[np.float64], centre: float,
                        half_width: float) -> tuple[float, float] | None:
     """Vertex and curvature (second derivative) of the least-squares parabola through the
     samples within ``half_width`` of ``centre``; None unless it opens upwards."""
@@ -329,9 +329,8 @@ def _search(pair: _PairData, window: float, n_samples: int, huber_px: float,
     curve bumpy), and fit a parabola through the samples within half the window of the
     lowest. Returns ``(shift, sd, n_points, shifts, costs)``; "edge" when the lowest sample is
     on the window's edge or only one end rises ``min_contrast`` above it; None when the curve
-    is flat (its ends less than ``min_contrast``
-    above its lowest sample: the people barely move, or too few are shared for the noise of
-    the fits) or too few correspondences stay.
+    is flat (its ends less than ``min_contrast`` above its lowest sample: the people barely
+    move, or too few are shared for the noise of the fits) or too few correspondences stay.
     """
     # the person is found anew at every shift, as the detection nearest to the association's
     # (median joint distance): following it along the frame links instead caught the links'
@@ -365,7 +364,7 @@ def _search(pair: _PairData, window: float, n_samples: int, huber_px: float,
         # rising on one side only: the lowest cost may lie beyond the other end (the paper's
         # walker 1.37 frames off had its lowest sample at -1.1 of +-1.5 and -1.5 within 0.1 %)
         return "edge"
-    fit = _quadratic_minimum(shifts, costs, shifts[k], window / 2)
+    fit = quadratic_minimum(shifts, costs, shifts[k], window / 2)
     if fit is None:
         return None
     best, curvature = fit
