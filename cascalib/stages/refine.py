@@ -68,7 +68,7 @@ from cascalib.stages.refine_problem import (
     track_targets,
 )
 from cascalib.stages.refine_result import RefineResult, with_failed_camera
-from cascalib.stages.time_refine import refine_offsets
+from cascalib.stages.time_refine import refine_offsets, regroup
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
@@ -120,19 +120,30 @@ def _report(assoc: Association, err: NDArray[np.float64], cameras: list[Camera],
     return quality
 
 
-def _sync_cost(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
-               joints: NDArray[np.int64], height: float) -> tuple[float, Association]:
-    """Median reprojection error of all groups triangulated by all cameras at these clocks, at
-    the reference times of ``data`` (see
-    :func:`~cascalib.stages.reconstruct.clock_check_times`)."""
+def _clock_check_groups(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
+                        height: float) -> tuple[Association, Association]:
+    """All persons at the reference times of ``data`` (see
+    :func:`~cascalib.stages.reconstruct.clock_check_times`) associated across the cameras at
+    these clocks, and an even subset of about 2000 of them on which clocks are compared."""
     # the refined ground gate with the first round's (looser) triangulation check
     gates = cfg.association_gates(refined=True) | {"consistency": cfg.consistency}
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height, link=False,
                       **gates)  # no tracks needed
-    step = max(1, assoc.n_groups // 2000)
-    _, err = triangulate_groups(assoc.subset(np.arange(0, assoc.n_groups, step)), cameras, joints)
-    e = err[np.isfinite(err)]
-    return (float(np.median(e)) if e.size else np.inf), assoc
+    return assoc, assoc.subset(np.arange(0, assoc.n_groups, max(1, assoc.n_groups // 2000)))
+
+
+def _clock_costs(data: SessionData, groups: Association, cameras: list[Camera],
+                 new: list[Camera], joints: NDArray[np.int64]) -> tuple[float, float]:
+    """Median reprojection error of ``groups`` (associated at the clocks of ``cameras``)
+    triangulated by all cameras at those clocks, and of the same persons at the clocks of
+    ``new``, over the joints seen at both."""
+    _, err = triangulate_groups(groups, cameras, joints)
+    _, err_new = triangulate_groups(regroup(data.keypoints, data.links, new, groups), new,
+                                    joints)
+    both = np.isfinite(err) & np.isfinite(err_new)
+    if not both.any():
+        return np.inf, np.inf
+    return float(np.median(err[both])), float(np.median(err_new[both]))
 
 
 def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
@@ -145,28 +156,33 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
 
     An update is kept only if it lowers the joint triangulation error of all cameras: the
     leave-one-out estimate of one clock can be biased by the rest of the rig's geometry errors.
-    A kept update that moved no offset by ``cfg.time_settle_frames`` ends the updates.
+    The error is compared on the same persons at the same times, seen through both clocks
+    (:func:`~cascalib.stages.time_refine.regroup`): between two associations made anew, which
+    persons each keeps moves the median by more than a tenth of a frame of one clock does. A
+    kept update that moved no offset by ``cfg.time_settle_frames`` ends the updates.
     ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
     ``sd`` (C,), if given, is filled with the standard error of each offset from the last
     update's measurement (see :func:`~cascalib.stages.time_refine.refine_offsets`).
     """
     data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
-    cost, assoc = _sync_cost(data, cameras, cfg, joints, height)
-    for _ in range(cfg.time_iterations):
+    assoc, groups = _clock_check_groups(data, cameras, cfg, height)
+    for i in range(cfg.time_iterations):
+        if i > 0:  # the persons as the kept clocks associate them
+            assoc, groups = _clock_check_groups(data, cameras, cfg, height)
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
                              rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,
                              rng=rng, sd=sd)
-        new_cost, new_assoc = _sync_cost(data, new, cfg, joints, height)
+        cost, new_cost = _clock_costs(data, groups, cameras, new, joints)
         kept = new_cost < cost * (1.0 + cfg.time_tie_tolerance)
-        log.info("time offsets: joint reprojection %.3f -> %.3f px (%s)", cost, new_cost,
+        log.info("time offsets: joint reprojection %.4f -> %.4f px (%s)", cost, new_cost,
                  "kept" if kept else "rejected")
         if not kept:
             break
         moved = max(abs(a.time_offset - b.time_offset) for a, b in zip(new, cameras,
                                                                          strict=True))
-        cameras, cost, assoc = new, new_cost, new_assoc
+        cameras = new
         if moved < cfg.time_settle_frames:
             break
     return cameras

@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,7 +45,7 @@ from cascalib.stages.track_interpolation import (
 )
 from cascalib.stages.triangulation import huber_weight, triangulate
 
-__all__ = ["previous_slots", "refine_offsets", "track_velocity"]
+__all__ = ["previous_slots", "refine_offsets", "regroup", "track_velocity"]
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +94,29 @@ def _nearest_of(keypoints: NDArray[np.float64], links: NDArray[np.int64],
     t = np.arange(len(frames))
     i = np.argmin(dist, axis=1)
     return slots[t, i], cand[t, i], dist[t, i]
+
+
+def regroup(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64]],
+            cameras: list[Camera], assoc: Association) -> Association:
+    """The groups of ``assoc`` seen through the clocks of ``cameras``: each camera's view of a
+    group is the detected person nearest to it (median joint distance), interpolated at the
+    group's reference time through that camera's clock.
+
+    For comparing clocks that differ by less than a frame on the same persons and times: two
+    associations made anew differ in which groups they keep, and that changes a median of
+    their reprojection errors by more than a tenth of a frame of one camera's clock does.
+    A view that the other clock puts outside the recording (or where nobody is detected) is NaN.
+    """
+    obs = np.full_like(assoc.obs, np.nan)
+    for c, (kp, lk, cam) in enumerate(zip(keypoints, links, cameras, strict=True)):
+        seen = np.flatnonzero(np.isfinite(assoc.obs[:, c, :, 0]).any(-1))
+        if seen.size == 0:
+            continue
+        frames = (assoc.times[seen] - cam.time_offset) / cam.time_rate
+        _, views, dist = _nearest_of(kp, lk, frames, None, assoc.obs[seen, c])
+        found = np.isfinite(dist)
+        obs[seen[found], c] = views[found]
+    return replace(assoc, obs=obs)
 
 
 def _cell(frames: NDArray[np.float64], n_f: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
