@@ -55,6 +55,7 @@ from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.single_view_solver import hartley_scale
 from cascalib.stages.sync import irls_l1
 from cascalib.stages.track_interpolation import interpolate_views, person_distances
+from cascalib.stages.triangulation import cauchy_weight
 from cascalib.tracks import Tracks
 
 __all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
@@ -220,7 +221,7 @@ def _fit_fundamental(a: _View, b: _View, scale_px: float, n_iter: int
         d = num / np.maximum(grad, 1e-300)
         # the kernel's scale from every fourth distance: the median of thousands needs no more
         scale = max(scale_px, 1.5 * float(np.median(d[::4])))
-        w = 1.0 / ((1.0 + (d / scale) ** 2) * np.maximum(grad, 1e-150) ** 2)
+        w = cauchy_weight(d, scale) / np.maximum(grad, 1e-150) ** 2
         w /= w.max()
     return F, d
 

@@ -6,7 +6,7 @@ persons are triangulated at reference times *without* that camera and projected 
 camera's 2D tracks are interpolated at ``(t - offset - delta - rho u) / rate``, where
 ``u = (t - t_mid) / half_span`` runs from -1 to 1 over the recording. ``delta`` (the offset at
 mid-recording) and ``rho`` (the rate change, in frames gained over half the recording) are the
-root of the robust (Huber) least-squares normal equation ``sum w J . r = 0``, ``J = (v, v u)``,
+root of the robust (Cauchy) least-squares normal equation ``sum w J . r = 0``, ``J = (v, v u)``,
 where ``r`` is the residual of each joint and ``v`` its image velocity (a Gauss-Newton start,
 then Broyden's secant steps). The velocity comes from the frames two before and two after the
 interpolated pair, so that its noise is independent of the residual's. Each camera's time
@@ -22,6 +22,21 @@ distances on a grid of ``delta``. Its curve was flat (0.1 px over a frame on 8 p
 moved by +-0.3 frame between random subsets of the same scene, with the true geometry. The normal
 equation uses every joint, weighted by how fast it moves: from the truth it stays within 0.03
 frame, from any start within 0.4 frame of it (simulated crowd, true geometry).
+
+Why Cauchy weights, not Huber's: a residual along the motion is the one that moves a clock, and
+under Huber's weights a wrong person matched in a crowd, or a detection of another instant,
+pulled it in proportion to its distance beyond the knee. One update from the true rig and clocks
+(bench_sync.py's windowed scenes, seeds 0-2, three subsets each), clock error over the frames
+each camera shares with the reference: crowd rms 0.044 -> 0.029 frame (worst 0.085 -> 0.070);
+terrace, lab ring and periodic walking rms 0.017 -> 0.014 (worst 0.041 -> 0.027). Through the
+whole cascade: bench_sync.py --refine (84 cameras), offset error at frame 0 after Stage V, the
+sum of the 8 rows' worst 0.658 -> 0.552 frame (windowed crowds 0.121 / 0.162 -> 0.114 / 0.091;
+periodic walking 0.044 -> 0.056 / 0.058, the one row that lost); 24 simulated 40 s scenes from
+Stage V's input, sum of the scenes' worst 0.784 -> 0.712 frame, relative rotations the same on
+average (mean of medians 0.236 -> 0.239 deg; scenes meeting median <= 0.3 and max <= 1 deg
+21 -> 18: three that were less than 0.01 deg under 0.3 came out at 0.304-0.360; single crowd
+scenes moved by up to 0.17 deg either way, as with any change upstream of them). The README
+example: rotation median / max 0.54 / 0.57 -> 0.28 / 0.42 deg, offsets max 0.04 -> 0.02 frame.
 """
 
 from __future__ import annotations
@@ -43,7 +58,7 @@ from cascalib.stages.track_interpolation import (
     linked_pairs,
     person_distances,
 )
-from cascalib.stages.triangulation import huber_weight, triangulate
+from cascalib.stages.triangulation import cauchy_weight, triangulate
 
 __all__ = ["previous_slots", "refine_offsets", "regroup", "track_velocity"]
 
@@ -220,7 +235,10 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
         A group whose nearest detected person lies farther (median over joints, px) is left out:
         a missed or wrong person.
     huber_px : float
-        Scale of the Huber weights of the joint residuals (px).
+        Scale of the Cauchy weights of the joint residuals (px); the name is from the Huber
+        weights they replaced, under which residuals far beyond the scale kept a pull that grew
+        with their distance (wrong persons, detections out of time; see the module
+        docstring).
     rates : bool
         Refine the frame-rate ratios too (else stage III's are kept). Off here so that a
         caller gets the plain offset search; the pipeline turns it on
@@ -410,7 +428,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
             return np.zeros(2), np.zeros((2, 2)), 0
         # the fastest 1 % are swapped or outlying joints: their velocity would dominate the sums
         use &= vn <= np.percentile(vn[use], 99)
-        w = np.where(use, huber_weight(rn, huber_px), 0.0)[..., None]
+        w = np.where(use, cauchy_weight(rn, huber_px), 0.0)[..., None]
         r, jac = np.where(use[..., None], r, 0.0), np.where(use[..., None], jac, 0.0)
         jr, jj = (w * jac * r).sum(-1), (w * jac * jac).sum(-1)  # (G, J)
         jju = jj * u[..., 0]
@@ -428,7 +446,7 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         return None
     # the rate only where the motion spans the recording (the data's rate curvature at least a
     # tenth of the offset's, as for samples spread evenly over more than half of it) and
-    # determines it better than the prior does (a Huber-scale residual per unit of
+    # determines it better than the prior does (a residual of the weights' scale per unit of
     # information): a short recording's ends hardly show a rate error, and noise or the other
     # cameras' offset errors would move the rate far off (1e-4 .. 7e-4 in 60 frames); else the
     # offset alone, at stage III's rate
@@ -445,9 +463,9 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
         return out
 
     # a Gauss-Newton start, then Broyden's secant steps on the normal equation (in one unknown,
-    # the secant method): the Huber weights overstate the loss's curvature (past the knee it
-    # grows linearly with |r|; in a crowd half the residuals are there), so Gauss-Newton alone
-    # moved a tenth of the error per step; the secant measures the slope
+    # the secant method): the robust weights overstate the loss's curvature (past the scale
+    # the loss grows slower than its weighted square; in a crowd half the residuals are there),
+    # so Gauss-Newton alone moved a tenth of the error per step; the secant measures the slope
     t0, t1 = np.zeros(2), np.clip(newton(s0, h0), -0.5, 0.5)
     slope, hess = h0.copy(), h0
     for _ in range(10):
@@ -508,7 +526,7 @@ def _block_line(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.
 
     Each of ``n_blocks`` blocks of the recording (by ``u``) gets the offset its own groups ask
     for, ``-sum jr / (kappa sum jj)`` (``kappa``: the secant's share of the Gauss-Newton
-    curvature, which the Huber weights overstate); a weighted line through them has the offset
+    curvature, which the robust weights overstate); a weighted line through them has the offset
     at mid-recording as its intercept and the rate as its slope, and the blocks' scatter about
     it gives their covariance: association slips and geometry errors that change as people move
     are correlated over seconds, which the nominal information (every joint independent) does
