@@ -21,6 +21,18 @@ from cascalib.stages.track_interpolation import frame_links, interpolate_slots, 
 from cascalib.stages.triangulation import BLOCK_POINTS, triangulate
 
 
+def update_clocks(tracks, truth, cams, n_updates: int, **kw) -> list:
+    """``n_updates`` clock updates of ``cams`` (reference camera 0), each after associating the
+    persons anew at the current clocks; ``kw`` go to :func:`refine_offsets`."""
+    data = _prepare(tracks, truth)
+    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
+    for _ in range(n_updates):
+        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
+                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
+        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0, **kw)
+    return cams
+
+
 def offset_errors(est, truth) -> np.ndarray:
     """|time offset error| (reference frames) of every camera of ``est`` against ``truth``."""
     return np.array([abs(e.time_offset - t.time_offset) for e, t in zip(est, truth, strict=True)])
@@ -264,12 +276,7 @@ def test_time_offsets_recovered(scene):
                        seed=2)
     cams = [c.with_(time_offset=c.time_offset + d) for c, d in
             zip(noisy.truth, (0, -0.5, 0.5, 0.4), strict=True)]
-    data = _prepare(noisy.tracks, noisy.truth)
-    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
-    for _ in range(3):
-        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
-                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
-        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+    cams = update_clocks(noisy.tracks, noisy.truth, cams, 3)
     err = offset_errors(cams, noisy.truth)
     assert max(err) < 0.1
 
@@ -286,13 +293,7 @@ def test_detections_out_of_time_do_not_pull_the_clock():
     ahead = np.flatnonzero(np.random.default_rng(5).random(120 - 6) < 0.2)
     kp[ahead] = sc.tracks[1].keypoints[ahead + 6]
     tracks = [sc.tracks[0], sc.tracks[1].with_(keypoints=kp), *sc.tracks[2:]]
-    cams = list(sc.truth)
-    data = _prepare(tracks, sc.truth)
-    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
-    for _ in range(3):
-        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
-                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
-        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints, rng=0)
+    cams = update_clocks(tracks, sc.truth, list(sc.truth), 3)
     err = offset_errors(cams, sc.truth)
     assert err[1] < 0.04, err
     assert max(err) < 0.08, err  # the others see camera 1 in their triangulations
@@ -311,13 +312,7 @@ def test_frame_rate_ratios_recovered_with_the_offsets():
     sc = make_scene(n_frames=500, n_persons=4, noise_px=1.0, offsets=(0, 0.3, -0.4, 0.2),
                     rates=rates, seed=3)
     cams = [c.with_(time_rate=1.0) for c in sc.truth]  # stage III's rates: all 1
-    data = _prepare(sc.tracks, sc.truth)
-    joints = np.array([CANONICAL_INDEX[n] for n in RefineConfig().joints])
-    for _ in range(6):
-        assoc = associate(_views(data, cams), cams, data.times, height=1.72,
-                          ankle_height=0.085, gate_m=0.6, consistency=0.3)
-        cams = refine_offsets(data.keypoints, data.links, cams, assoc, 0, joints,
-                              rates=True, rng=0)
+    cams = update_clocks(sc.tracks, sc.truth, cams, 6, rates=True)
     off = offset_errors(cams, sc.truth)
     rate = [abs(c.time_rate / t.time_rate - 1) for c, t in zip(cams, sc.truth, strict=True)]
     # at frame 0 and at the last frame: the whole mapping, not its middle
