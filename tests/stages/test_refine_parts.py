@@ -112,6 +112,26 @@ def test_frame_links_follow_persons():
     np.testing.assert_allclose(mid[0, :, :, :2], expect)
 
 
+def test_frame_links_follow_track_ids_only_where_they_are_plausible():
+    """Two persons a fifth of their size apart walk side by side. A tracker that swaps their
+    ids in frame 2 (as trackers do where boxes overlap) is not followed there: its step is a
+    jump from one person to the other. Where the two stand on the same spot (the motion
+    cannot tell them apart) the ids decide."""
+    rng = np.random.default_rng(3)
+    body = rng.uniform(0, 200, (26, 2))  # a person about 280 px in size
+    walk = np.array([3.0, 0.0])  # px per frame
+    a = np.stack([body + walk * f for f in range(5)])
+    kp = np.stack([a, a + np.array([0.0, 56.0])], axis=1)  # (5, 2, 26, 2)
+    kp = np.concatenate([kp, np.ones(kp.shape[:-1] + (1,))], -1)
+    ids = np.array([[0, 1], [0, 1], [1, 0], [1, 0], [1, 0]])  # swapped from frame 2 on
+    links = frame_links(kp, ids)
+    assert links[:4].tolist() == [[0, 1]] * 4  # the persons, not the swapped ids
+    together = kp.copy()
+    together[:, 1, :, :2] = together[:, 0, :, :2]  # the same spot: only the ids tell
+    assert frame_links(together, ids)[1].tolist() == [1, 0]
+    assert frame_links(together, ids)[0].tolist() == [0, 1]
+
+
 def test_interpolated_slots_are_those_of_all_persons():
     """interpolate_slots gives interpolate_views' values of the chosen slots, with missing
     joints, broken links, times outside the recording and slot -1 (NaN)."""
