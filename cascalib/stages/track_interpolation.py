@@ -95,7 +95,10 @@ def _follow_ids(links: NDArray[np.int64], cost: NDArray[np.float64],
       (medians 0.015 / 0.022 -> 0.036 / 0.027), rates 0.019 / 0.012 -> 0.011 / 0.010 %;
     * the six crowds of 24 simulated 40 s whole-cascade scenes (Stage V from cached stage
       II-IV results): mean of median relative rotations 0.310 -> 0.264 deg (single scenes
-      -0.22 .. +0.06), worst 0.577 -> 0.531, sum of worst offsets 0.161 -> 0.099 frame.
+      -0.22 .. +0.06), worst 0.577 -> 0.531, sum of worst offsets 0.161 -> 0.099 frame;
+    * bench_refine.py's crowd rows (from the true rig 3-5 deg off, seeds 0-2): median / max
+      relative rotation 0.313 / 0.478, 0.464 / 0.762, 0.349 / 0.554 -> 0.154 / 0.267, 0.226 /
+      0.362, 0.328 / 0.336 deg, focal max 0.44 / 0.92 / 0.47 -> 0.17 / 0.43 / 0.27 %.
     """
     ta, tb = track_ids[:-1, :, None], track_ids[1:, None, :]
     same = (ta == tb) & (ta >= 0)
