@@ -165,10 +165,9 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     update's measurement (see :func:`~cascalib.stages.time_refine.refine_offsets`).
     """
     data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
-    assoc, groups = _clock_check_groups(data, cameras, cfg, height)
-    for i in range(cfg.time_iterations):
-        if i > 0:  # the persons as the kept clocks associate them
-            assoc, groups = _clock_check_groups(data, cameras, cfg, height)
+    for _ in range(cfg.time_iterations):
+        # the persons as the current (kept) clocks associate them
+        assoc, groups = _clock_check_groups(data, cameras, cfg, height)
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
