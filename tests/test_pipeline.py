@@ -63,8 +63,8 @@ def test_estimated_principal_points_carry_a_split_half_uncertainty(result):
         centre = (np.array(cam.image_size) - 1) / 2
         if result.refinement.distortion:  # a lens model: as uncertain as the prior
             assert q.sigma_principal_point_px >= 0.02 * cam.image_size[0] - 1e-9, q
-        elif np.allclose(cam.principal_point, centre):  # the pass was not kept
-            assert np.isnan(q.sigma_principal_point_px)
+        elif np.allclose(cam.principal_point, centre):  # the pass was not kept: assumed
+            assert q.sigma_principal_point_px == pytest.approx(0.02 * cam.image_size[0]), q
         else:  # estimated: its split-half spread is part of the rotation uncertainty
             assert 0 < q.sigma_principal_point_px < 30, q
             pp_deg = np.degrees(np.arctan(q.sigma_principal_point_px / cam.focal))

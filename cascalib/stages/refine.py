@@ -405,6 +405,16 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
+def _prior_spread(cameras: list[Camera], fixed: Collection[int], cfg: RefineConfig
+                  ) -> NDArray[np.float64]:
+    """The principal-point prior's sd (px, (C,)): how far real principal points lie from the
+    image centre (``principal_point_sigma`` of the image width); 0 for known intrinsics
+    (``fixed``)."""
+    sd = np.array([cfg.principal_point_sigma * cam.image_size[0] for cam in cameras])
+    sd[list(fixed)] = 0.0
+    return sd
+
+
 def _lens_floor(pp_se: NDArray[np.float64], cameras: list[Camera], fixed: Collection[int],
                 cfg: RefineConfig) -> NDArray[np.float64]:
     """The principal points' uncertainty (px, (C,)) once the lens pass is kept: at least the
@@ -422,9 +432,7 @@ def _lens_floor(pp_se: NDArray[np.float64], cameras: list[Camera], fixed: Collec
     every camera "suspicious", the largest error 2.2 combined sigmas. Known intrinsics
     (``fixed``) keep theirs.
     """
-    prior = np.array([cfg.principal_point_sigma * cam.image_size[0] for cam in cameras])
-    out = np.maximum(pp_se, prior)
-    out[list(fixed)] = pp_se[list(fixed)]
+    out = np.maximum(pp_se, _prior_spread(cameras, fixed, cfg))  # known: 0, theirs kept
     log.info("lens model kept: the principal points are as uncertain as their prior (%s px)",
              ", ".join(f"{v:.0f}" for v in out))
     return out
@@ -541,6 +549,16 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                                        max_groups=cfg.spread_groups)
     if pp is not None:
         fit = pp.fit
+    if pp_se is None:
+        # no principal-point pass ran or was kept (or its spread could not be measured): the
+        # principal points sit where the rounds held them, at the image centre, as uncertain
+        # as real ones lie from it. Reported as unknown (NaN) instead, the rotation's sigma
+        # left that error out: on the simulator's phones (principal points 1-4 % of the width
+        # off, principal_point "never") rotations 0.9-2.1 deg off reported a 1-sigma of
+        # 0.10-0.13 deg, every camera "accepted"; now 0.96-1.88 deg, three "suspicious"
+        pp_se = _prior_spread(fit.cameras, run.fixed, cfg)
+        log.info("principal points not estimated: assumed at the image centre (sd %s px)",
+                 ", ".join(f"{v:.0f}" for v in pp_se))
     distortion = False
     if cfg.distortion != "never":
         chosen = _pass_groups(fit.assoc, fit.sel, data.sizes, run.joints, cfg,
@@ -553,18 +571,14 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
             run.solves.append(info)
             fit = replace(fit, cameras=cameras, graph=graph, values=values, prob=prob)
             distortion = True
-            # where the principal-point pass was not kept, the principal points sit at the
-            # image centre, no better known
-            pp_se = _lens_floor(np.zeros(len(cameras)) if pp_se is None else pp_se, cameras,
-                                run.fixed, cfg)
+            pp_se = _lens_floor(pp_se, cameras, run.fixed, cfg)
     prog.step()
     cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
     if prob.obs.shape[0] > cfg.max_groups:
         graph, values, prob = rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
                                                 prob.model)
     sigmas = marginal_sigmas(graph, values, prob)
-    if pp_se is not None:
-        sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
+    sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
     if cfg.time_final_update and (pp is not None or distortion):
         # the passes moved the geometry after the rounds' last clock update
         cameras = run.clocks(cameras)

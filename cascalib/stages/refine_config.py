@@ -388,7 +388,9 @@ class RefineConfig(BaseModel):
         "and 20.1 s on; rotation 0.427 / 0.752 -> 0.425 / 0.725 deg).")
     principal_point_sigma: float = Field(
         0.02, gt=0, description="Prior sd of the principal point around the image centre, as a "
-        "fraction of the image width.")
+        "fraction of the image width. Where the principal points are not estimated "
+        "(principal_point 'never', or the pass not kept) the quality report gives them this sd, "
+        "and the rotation's sigma includes it: lower it for cameras known to be centred.")
     distortion_sigma: float = Field(0.3, gt=0, description="Prior sd of k1 and k2.")
     tangential_sigma: float = Field(0.01, gt=0, description="Prior sd of p1 and p2.")
 
