@@ -399,8 +399,14 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0
     rho = [fps_ref / f if known else 1.0 for f in fps]  # type: ignore[operator]
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
+        # the canonical tracks and their frame links, for the epipolar steps (pairs' candidates
+        # and the clocks at the end), alongside the ground trajectories
+        session = (pool.submit(prepare, tracks, Calibration(
+            plane_cameras, reference_camera=plane_cameras[ref].name))
+            if cfg.epipolar_candidates > 1 or cfg.epipolar_sync else None)
         ground = list(pool.map(lambda c: _ground(tracks[c], plane_cameras[c], fps[c], cfg),
                                range(n)))
+        data = None if session is None else session.result()
     step = max(1, int(round(fps_ref / cfg.coarse_rate)))
     coarse = [resample_tracks(g, r, float(step)) for g, r in zip(ground, rho, strict=True)]
     fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
@@ -414,8 +420,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     report = progress or (lambda fraction: None)
     report(0.2)
     joints = None
-    if cfg.epipolar_candidates > 1:
-        data = prepare(tracks, Calibration(plane_cameras))
+    if data is not None and cfg.epipolar_candidates > 1:
         joints = PairJoints(data.keypoints, data.links, plane_cameras, rho, height, fps_ref)
     pairs = []
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
@@ -442,7 +447,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     epi = epipolar_clocks(tracks, result.calibration, height=height,
                           window=cfg.epipolar_window_frames, n_times=cfg.epipolar_times,
                           max_points=cfg.epipolar_points, iterations=cfg.epipolar_iterations,
-                          n_workers=cfg.n_workers, rng=rng)
+                          n_workers=cfg.n_workers, rng=rng, data=data)
     return replace(result, calibration=epi.calibration, epipolar=epi)
 
 

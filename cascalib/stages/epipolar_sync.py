@@ -50,7 +50,7 @@ from cascalib.geometry import norm_xy
 from cascalib.nanstats import joint_extent
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.association import Association, associate
-from cascalib.stages.reconstruct import clock_check_times, prepare, views_at
+from cascalib.stages.reconstruct import SessionData, clock_check_times, prepare, views_at
 from cascalib.stages.refine_config import DEFAULT_JOINTS, RefineConfig
 from cascalib.stages.single_view_solver import hartley_scale
 from cascalib.stages.sync import irls_l1
@@ -481,7 +481,8 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
                     window: float = 1.5, n_times: int = 300, max_points: int = 8000,
                     iterations: int = 2, huber_px: float = 2.0, tolerance: float = 0.3,
                     min_contrast: float = 1.05, settle: float = 0.15, n_workers: int = 2,
-                    rng: np.random.Generator | int | None = None) -> EpipolarClocks:
+                    rng: np.random.Generator | int | None = None,
+                    data: SessionData | None = None) -> EpipolarClocks:
     """Correct every camera's time offset by the epipolar consistency of the people's joints.
 
     Parameters
@@ -519,13 +520,18 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
         Threads searching camera pairs.
     rng : Generator or int, optional
         For the subsets of correspondences.
+    data : SessionData, optional
+        ``tracks`` as :func:`~cascalib.stages.reconstruct.prepare` makes them for
+        ``calibration`` (its camera order and reference), if the caller has them already
+        (stage IV does: about 0.4 s of 4 cameras x 3000 frames x 5 persons).
 
     Returns
     -------
     EpipolarClocks
     """
     rng = np.random.default_rng(rng)
-    data = prepare(list(tracks), calibration)
+    if data is None:
+        data = prepare(list(tracks), calibration)
     data = clock_check_times(data, n_times)
     joints = _JOINTS
     kps = [np.ascontiguousarray(k[:, :, joints, :2]) for k in data.keypoints]
