@@ -24,9 +24,10 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -156,8 +157,41 @@ def _ground(tracks: Tracks, cam: Camera, fps: float | None, cfg: AlignConfig) ->
         stance_smooth=cfg.stance_smooth_seconds * rate)
 
 
-def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
-                lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+@dataclass(frozen=True)
+class _CameraGround:
+    """One camera's ground trajectories on the reference clock: as found, on the coarse grid
+    of the offset search, and on the fine grid of ICP with its lanes."""
+
+    ground: GroundTracks
+    coarse: GridTrack
+    fine: GridTrack
+    lanes: Lanes
+
+
+def _camera_ground(tracks: Tracks, cam: Camera, fps: float | None, rho: float, fps_ref: float,
+                   cfg: AlignConfig) -> _CameraGround:
+    ground = _ground(tracks, cam, fps, cfg)
+    step = max(1, int(round(fps_ref / cfg.coarse_rate)))
+    fine = resample_tracks(ground, rho, 1.0, smooth=cfg.smooth_seconds * (fps or fps_ref))
+    return _CameraGround(ground, resample_tracks(ground, rho, float(step)), fine,
+                         dense_lanes(fine))
+
+
+class _Ready(Sequence[Any]):
+    """``[c]``: one field of camera c's :class:`_CameraGround`, once its task has made it."""
+
+    def __init__(self, cameras: list[Future[_CameraGround]], name: str) -> None:
+        self._cameras, self._name = cameras, name
+
+    def __len__(self) -> int:
+        return len(self._cameras)
+
+    def __getitem__(self, c: Any) -> Any:
+        return getattr(self._cameras[int(c)].result(), self._name)
+
+
+def _align_pair(i: int, j: int, coarse: Sequence[GridTrack], fine: Sequence[GridTrack],
+                lanes: Sequence[Lanes], noise: list[tuple[NDArray[np.float64], float]],
                 fps_ref: float, cfg: AlignConfig, rng: np.random.Generator,
                 joints: PairJoints | None = None) -> PairAlignment:
     """Offset candidates, ICP verification and continuous refinement for one pair.
@@ -237,8 +271,8 @@ def _align_pair(i: int, j: int, coarse: list[GridTrack], fine: list[GridTrack],
                          evidence_sigma=sig)
 
 
-def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: list[GridTrack],
-                 lanes: list[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: Sequence[GridTrack],
+                 lanes: Sequence[Lanes], noise: list[tuple[NDArray[np.float64], float]],
                  fps_ref: float, cfg: AlignConfig, sr: float, rng: np.random.Generator
                  ) -> SyncFit | None:
     """Sub-frame offset, rate and similarity from the ICP match at an integer offset."""
@@ -270,7 +304,7 @@ def _fit_at(i: int, j: int, offset: int, angle: float, fine: list[GridTrack],
                                                   fps_ref, cfg, sr, rng)
 
 
-def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: list[Lanes],
+def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: Sequence[Lanes],
                        cfg: AlignConfig, sr: float, rng: np.random.Generator
                        ) -> IcpResult | None:
     """Re-initialise the ICP by the brute-force rotation search (paper, "2D Rotation Search")."""
@@ -398,38 +432,43 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     known = fps[ref] is not None and all(f is not None for f in fps)
     fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0
     rho = [fps_ref / f if known else 1.0 for f in fps]  # type: ignore[operator]
-    with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
-        # the canonical tracks and their frame links, for the epipolar steps (pairs' candidates
-        # and the clocks at the end), alongside the ground trajectories
-        session = (pool.submit(prepare, tracks, Calibration(
-            plane_cameras, reference_camera=plane_cameras[ref].name))
-            if cfg.epipolar_candidates > 1 or cfg.epipolar_sync else None)
-        ground = list(pool.map(lambda c: _ground(tracks[c], plane_cameras[c], fps[c], cfg),
-                               range(n)))
-        data = None if session is None else session.result()
-    step = max(1, int(round(fps_ref / cfg.coarse_rate)))
-    coarse = [resample_tracks(g, r, float(step)) for g, r in zip(ground, rho, strict=True)]
-    fine = [resample_tracks(g, r, 1.0, smooth=cfg.smooth_seconds * (f or fps_ref))
-            for g, r, f in zip(ground, rho, fps, strict=True)]
-    lanes = [dense_lanes(f) for f in fine]
     # ground noise model per camera: one pixel moves a point at distance d by d^2 / (f h)
     noise = [(c.center[:2], cfg.pixel_noise / (c.focal * max(c.center[2], 0.3)))
              for c in plane_cameras]
     ij = [(i, j) for i in range(n) for j in range(i + 1, n)]
     seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
     report = progress or (lambda fraction: None)
-    report(0.2)
-    joints = None
-    if data is not None and cfg.epipolar_candidates > 1:
-        joints = PairJoints(data.keypoints, data.links, plane_cameras, rho, height, fps_ref)
-    pairs = []
     with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
-        for pair in pool.map(lambda k: _align_pair(*ij[k], coarse, fine, lanes, noise,
-                                                   fps_ref, cfg, np.random.default_rng(seeds[k]),
-                                                   joints),
-                             range(len(ij))):
-            pairs.append(pair)
+        # the canonical tracks and their frame links for the epipolar steps (the pairs'
+        # candidates and the clocks at the end), every camera's ground trajectories, then the
+        # pairs, each as soon as its two cameras are ready (no core idles between the steps).
+        # Tasks start in the order they were given: a pair waits only for tasks that run
+        session = (pool.submit(prepare, tracks, Calibration(
+            plane_cameras, reference_camera=plane_cameras[ref].name))
+            if cfg.epipolar_candidates > 1 or cfg.epipolar_sync else None)
+        per_cam = [pool.submit(_camera_ground, tracks[c], plane_cameras[c], fps[c], rho[c],
+                               fps_ref, cfg) for c in range(n)]
+
+        def align_pair(k: int) -> PairAlignment:
+            joints = None
+            if session is not None and cfg.epipolar_candidates > 1:
+                d = session.result()
+                joints = PairJoints(d.keypoints, d.links, plane_cameras, rho, height, fps_ref)
+            return _align_pair(*ij[k], _Ready(per_cam, "coarse"), _Ready(per_cam, "fine"),
+                               _Ready(per_cam, "lanes"), noise, fps_ref, cfg,
+                               np.random.default_rng(seeds[k]), joints)
+
+        found = [pool.submit(align_pair, k) for k in range(len(ij))]
+        cams = [f.result() for f in per_cam]
+        report(0.2)
+        pairs = []
+        for f in found:
+            pairs.append(f.result())
             report(0.2 + 0.75 * len(pairs) / len(ij))
+        data = None if session is None else session.result()
+    ground = [c.ground for c in cams]
+    fine = [c.fine for c in cams]
+    lanes = [c.lanes for c in cams]
     sr = cfg.scale_range if cfg.estimate_scale else 1.0
     pairs, a, b, T = global_alignment(n, ref, pairs, cfg, sr)
     if cfg.camera_vote and n > 2:

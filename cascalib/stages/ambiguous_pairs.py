@@ -24,6 +24,7 @@ Huber loss, which let swapped joints pull the clock; with its Cauchy loss all 35
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -124,7 +125,7 @@ def _lowest_cost(i: int, j: int, fit: SyncFit, joints: PairJoints, cfg: AlignCon
 
 
 def scan_candidates(i: int, j: int, curve: SyncCurve, results: list[IcpResult | None],
-                    lanes: list[Lanes], fps_ref: float, cfg: AlignConfig, sr: float
+                    lanes: Sequence[Lanes], fps_ref: float, cfg: AlignConfig, sr: float
                     ) -> tuple[SyncCurve, list[IcpResult | None]]:
     """More candidates for an ambiguous pair (one whose candidates include a plausible fit)
     from quick ICP at offsets ``cfg.scan_seconds`` apart (at most ``cfg.scan_max_offsets``

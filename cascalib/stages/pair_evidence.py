@@ -6,6 +6,8 @@ scan and epipolar check of ambiguous pairs (:mod:`~cascalib.stages.ambiguous_pai
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from cascalib.camera import Camera
@@ -17,7 +19,7 @@ __all__ = ["ambiguity_of", "candidate_score", "evidence", "evidence_sigma", "pai
            "place_camera", "plausible"]
 
 
-def pair_icp(i: int, j: int, offset: int, angle: float, lanes: list[Lanes], cfg: AlignConfig,
+def pair_icp(i: int, j: int, offset: int, angle: float, lanes: Sequence[Lanes], cfg: AlignConfig,
              sr: float, quick: bool = False) -> IcpResult | None:
     """Trimmed ICP of cameras ``i`` and ``j`` at an integer offset with ``cfg``'s settings;
     ``quick`` compares a quarter of the frames in 8 iterations (a first look at a candidate)."""
