@@ -56,7 +56,10 @@ class RefineConfig(BaseModel):
         "scenes (terrace, lab ring, crowd, periodic; seeds 0-5): mean of the median relative "
         "rotations 0.228 -> 0.250 / 0.261 deg, scenes meeting median <= 0.3 / max <= 1 deg "
         "18 -> 16 / 16 (the first solve took 3.8 s of Stage V's 22 s on 4 x 3000 x 5). Not "
-        "taken.")
+        "taken. 3600 again, on the same scenes: terrace mean of medians 0.215 -> 0.200 deg (four "
+        "of six better by 0.02-0.07, one 0.10 worse: within the scatter), lab ring and periodic "
+        "unchanged (their 40 s hold too few usable person-frames: the pass leaves a fifth out), "
+        "crowds not concerned (intrinsics_groups_per_person). Not taken.")
     intrinsics_groups_per_person: int = Field(
         450, ge=0, description="Person-frames of the principal-point pass per person in view "
         "(the rounds' associated persons per reference time), where that is more than "
