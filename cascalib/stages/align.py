@@ -459,13 +459,18 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                                np.random.default_rng(seeds[k]), joints)
 
         found = [pool.submit(align_pair, k) for k in range(len(ij))]
-        cams = [f.result() for f in per_cam]
-        report(0.2)
-        pairs = []
-        for f in found:
-            pairs.append(f.result())
-            report(0.2 + 0.75 * len(pairs) / len(ij))
-        data = None if session is None else session.result()
+        try:
+            cams = [f.result() for f in per_cam]
+            report(0.2)
+            pairs = []
+            for f in found:
+                pairs.append(f.result())
+                report(0.2 + 0.75 * len(pairs) / len(ij))
+            data = None if session is None else session.result()
+        except BaseException:
+            for f in found:  # a camera's error: the pairs not started yet are not run
+                f.cancel()
+            raise
     ground = [c.ground for c in cams]
     fine = [c.fine for c in cams]
     lanes = [c.lanes for c in cams]

@@ -225,3 +225,32 @@ def test_a_short_coincidence_does_not_outscore_the_whole_recording() -> None:
     assert abs(offset_errors(AlignConfig(evidence_seconds=10.0))["cam3"]) > 1000
     for camera, err in offset_errors(AlignConfig()).items():
         assert abs(err) < 0.5, camera
+
+
+def test_a_cameras_error_stops_the_alignment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The camera pairs start while other cameras' ground trajectories are still being made:
+    an error in one of those reaches the caller as it was raised, and the pairs that need the
+    camera do not go on without it."""
+    import cascalib.stages.align as align
+
+    sc = make_scene(n_cams=3, n_persons=2, n_ref_frames=300, offsets=[0.0, 20.0, -10.0], seed=1)
+    real = align._ground
+    paired: list[tuple[int, int]] = []
+    real_pair = align._align_pair
+
+    def failing(tracks, cam, fps, cfg):  # type: ignore[no-untyped-def]
+        if tracks.camera == "cam1":
+            raise InputError("no feet", camera="cam1")
+        return real(tracks, cam, fps, cfg)
+
+    def pair(i, j, *args, **kwargs):  # type: ignore[no-untyped-def]
+        out = real_pair(i, j, *args, **kwargs)
+        paired.append((i, j))
+        return out
+
+    monkeypatch.setattr(align, "_ground", failing)
+    monkeypatch.setattr(align, "_align_pair", pair)
+    with pytest.raises(InputError, match="no feet") as err:
+        align_cameras(sc.tracks, sc.plane, rng=0)
+    assert err.value.camera == "cam1"
+    assert all(1 not in p for p in paired), paired
