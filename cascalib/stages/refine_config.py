@@ -73,7 +73,9 @@ class RefineConfig(BaseModel):
         "at a time), 40 s whole-cascade scenes, seeds 0-5, two runs each (refine's rng 0 and "
         "1), median relative rotation: 2400 -> 4800 person-frames, mean 0.403 -> 0.276 deg, "
         "runs meeting median <= 0.3 / max <= 1 deg 3 -> 8 of 12, worst max 1.17 -> 0.82 deg; "
-        "about 4000 (rng 0): mean 0.359, 4 of 6. Their Stage V CPU time rose by about 19 %.")
+        "about 4000 (rng 0): mean 0.359, 4 of 6. Their Stage V CPU time rose by about 19 %. "
+        "6400 (the crowds' 450 per person in view), later, rng 0: mean 0.264 -> 0.292 deg, "
+        "scenes meeting the targets 4 -> 3 of 6, worst max 0.53 -> 0.69 deg. Not taken.")
     distortion_groups: int = Field(
         240, ge=10, description="Person-frames of the lens-distortion pass (its principal point "
         "is held where the principal-point pass put it).")
