@@ -378,7 +378,16 @@ class RefineConfig(BaseModel):
         "focal worst 1.11 -> 0.59 %, centres worst 5.4 -> 3.0 cm, scenes meeting 0.3 / 1 deg "
         "18 -> 18 (crowd seed 1 in, periodic seed 0 out: 0.293 -> 0.320); of the 7, 5 "
         "improved and 2 lost 0.03 deg; 22 % more time over the 24. Rerunning always (0, one "
-        "rerun): median 0.192, mean 0.227, 17 meeting, 78 % more time.")
+        "rerun): median 0.192, mean 0.227, 17 meeting, 78 % more time. 0.4 instead, on the six "
+        "crowds with three rngs each (refine's random subsets alone moved a crowd's median by "
+        "up to 0.77 deg): mean of the medians 0.310 -> 0.251 deg, runs meeting median <= 0.3 / "
+        "max <= 1 deg 9 -> 12 of 18, worst max 1.35 -> 0.70 deg (crowd seed 0 with rng 11: its "
+        "update had moved the cameras 0.599 deg, no rerun, 0.91 / 1.35 deg; with it 0.17 / "
+        "0.31); 10 runs unchanged, 6 better, 2 within 0.01 deg. On the 18 other scenes (one "
+        "rng) it reran on 6: 4 of them lost 0.01-0.07 deg, 2 gained < 0.01 (mean of medians "
+        "0.216 -> 0.223, "
+        "meeting 14 -> 14); the 4 x 3000 x 5 scene's update moves 0.596 deg, so it would pay "
+        "one more round and pass there. Not taken: the crowds need a rerun rule of their own.")
     principal_point_reruns: int = Field(
         2, ge=0, description="Most reruns of principal_point_rerun_deg. From a start 3 deg / "
         "0.3 m / 5 % focal off the true rig (bench_refine.py, crowd seed 0: the rounds never "
