@@ -385,8 +385,8 @@ class RefineConfig(BaseModel):
         "update had moved the cameras 0.599 deg, no rerun, 0.91 / 1.35 deg; with it 0.17 / "
         "0.31); 10 runs unchanged, 6 better, 2 within 0.01 deg. On the 18 other scenes (one "
         "rng) it reran on 6: 4 of them lost 0.01-0.07 deg, 2 gained < 0.01 (mean of medians "
-        "0.216 -> 0.223, "
-        "meeting 14 -> 14); the 4 x 3000 x 5 scene's update moves 0.596 deg, so it would pay "
+        "0.216 -> 0.223, meeting 14 -> 14); the 4 x 3000 x 5 scene's update moves 0.596 deg, "
+        "so it would pay "
         "one more round and pass there. Not taken: the crowds need a rerun rule of their own.")
     principal_point_reruns: int = Field(
         2, ge=0, description="Most reruns of principal_point_rerun_deg. From a start 3 deg / "
