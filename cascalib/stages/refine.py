@@ -405,6 +405,21 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
+def _crowded(assoc: Association, cfg: RefineConfig) -> bool:
+    """Whether the rounds associated as many persons at a reference time (median over the
+    times) as ``RefineConfig.principal_point_rerun_persons``: a crowd, which gets one rerun of
+    the rounds and the principal-point pass whatever the update moved."""
+    limit = cfg.principal_point_rerun_persons
+    if limit is None or assoc.n_groups == 0:
+        return False
+    _, counts = np.unique(assoc.times, return_counts=True)
+    crowd = bool(np.median(counts) >= limit)
+    if crowd:
+        log.info("a crowd (%.0f persons at a time): the rounds and the pass run again once "
+                 "whatever the update moves", np.median(counts))
+    return crowd
+
+
 def _prior_spread(cameras: list[Camera], fixed: Collection[int], cfg: RefineConfig
                   ) -> NDArray[np.float64]:
     """The principal-point prior's sd (px, (C,)): how far real principal points lie from the
@@ -527,8 +542,10 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                         refined=False)
     fit, pp = _principal_point_pass(run, fit)
     estimated = pp  # the last kept pass: the principal points the cameras carry
-    for _ in range(cfg.principal_point_reruns):
-        if pp is None or pp.moved_deg <= cfg.principal_point_rerun_deg:
+    crowd = _crowded(fit.assoc, cfg)
+    for k in range(cfg.principal_point_reruns):
+        if pp is None or (pp.moved_deg <= cfg.principal_point_rerun_deg
+                          and not (crowd and k == 0)):
             break
         # the rounds' association, clocks and bone targets were made at a geometry about that
         # far off (principal points at the image centre): once more at the pass's

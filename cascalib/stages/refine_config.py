@@ -387,7 +387,8 @@ class RefineConfig(BaseModel):
         "rng) it reran on 6: 4 of them lost 0.01-0.07 deg, 2 gained < 0.01 (mean of medians "
         "0.216 -> 0.223, meeting 14 -> 14); the 4 x 3000 x 5 scene's update moves 0.596 deg, "
         "so it would pay "
-        "one more round and pass there. Not taken: the crowds need a rerun rule of their own.")
+        "one more round and pass there. Not taken: the crowds have a rule of their own, "
+        "principal_point_rerun_persons.")
     principal_point_reruns: int = Field(
         2, ge=0, description="Most reruns of principal_point_rerun_deg. From a start 3 deg / "
         "0.3 m / 5 % focal off the true rig (bench_refine.py, crowd seed 0: the rounds never "
@@ -395,6 +396,29 @@ class RefineConfig(BaseModel):
         "moved the cameras by 1.86, 0.73, 0.47 deg; relative rotation median / max with 0, 1, "
         "2 reruns 1.96 / 2.09, 0.61 / 0.77, 0.24 / 0.31 deg (focal max 2.6, 0.75, 0.24 %). "
         "On the 24 scenes above no second rerun was asked for.")
+    principal_point_rerun_persons: int | None = Field(
+        10, ge=1, description="A crowd, where the rounds associated at least this many persons "
+        "at a reference time (median over the times), gets one rerun of principal_point_"
+        "rerun_deg whatever its update moved; further reruns follow that threshold. In a crowd "
+        "the rounds' association, made with the principal points at the image centre, joins "
+        "wrong persons: associated again with the pass's cameras, 4-13 % of the crowds' "
+        "person-frames were grouped differently, 0.4-1.3 % on the lab-ring and periodic "
+        "scenes, 1-3 % on five terrace scenes and 23 % on the sixth (the groups' 2D centres "
+        "compared, which a clock update also moves): the count of persons tells the crowds "
+        "apart more clearly. None: never. Measured on the six simulated 40 s "
+        "whole-cascade crowds (15 persons, a median of 15 associated at a time; the terrace, "
+        "lab-ring and periodic scenes have 5, 3 and 3, and keep their results) with three "
+        "rngs of refine each (cached, 11, 12), median relative rotation: mean 0.310 -> "
+        "0.244 deg, runs meeting median <= 0.3 / max <= 1 deg 9 -> 14 of 18, worst max 1.35 "
+        "-> 0.73 deg (mean max 0.443 -> 0.361); of the 15 runs it changed (3 had rerun "
+        "already) 9 improved by 0.02-0.47 deg and 6 lost 0.01-0.07 (crowd seeds 2 and 5 at "
+        "every rng). Rerunning at principal_point_rerun_deg 0.4 instead gave 0.251, 12 of 18 "
+        "and 0.70 on the crowds and reran on 6 of the 18 other scenes too, 4 of them worse. "
+        "Two forced reruns on 12 of the other scenes: mean of medians 0.200 -> 0.213 deg, 9 "
+        "worse (lab ring seed 0 0.221 -> 0.278, terrace seed 2 0.274 -> 0.348, periodic seed "
+        "3 0.196 -> 0.271), 3 better (terrace seed 1 0.360 -> 0.312). Cost: one round, its "
+        "clock update and the pass, whose crowd-size budget (intrinsics_groups_max) makes it "
+        "the dearest step: crowd seed 4's Stage V took 48 -> 82 s CPU (73 s wall).")
     principal_point_reassociate: bool = Field(
         True, description="Before the principal-point update, associate the persons again "
         "with the pass's cameras and choose the update's (and the distortion pass's) "

@@ -574,18 +574,22 @@ def test_rounds_continue_while_the_cameras_still_move(tolerance, n_rounds, solve
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
 
 
-@pytest.mark.parametrize(("rerun_deg", "reruns", "solves"),
-                         [(1e3, 2, 2), (0.0, 1, 4), (0.0, 2, 6), (0.0, 0, 2)])
-def test_principal_point_rerun_when_the_update_moved_the_cameras(rerun_deg, reruns, solves,
-                                                                 caplog):
+@pytest.mark.parametrize(("rerun_deg", "reruns", "persons", "solves"),
+                         [(1e3, 2, 10, 2), (0.0, 1, 10, 4), (0.0, 2, 10, 6), (0.0, 0, 10, 2),
+                          (1e3, 2, 2, 4), (1e3, 2, 3, 2), (0.0, 1, 2, 4), (1e3, 0, 2, 2),
+                          (1e3, 2, None, 2)])
+def test_principal_point_rerun_when_the_update_moved_the_cameras(rerun_deg, reruns, persons,
+                                                                 solves, caplog):
     """A principal-point update that moved a camera by more than principal_point_rerun_deg
     brings one more round and pass, at most principal_point_reruns times: 1 round + the pass,
-    then both again per rerun."""
+    then both again per rerun. A crowd (the scene's 2 persons at a time against
+    principal_point_rerun_persons 2) gets the first rerun whatever the update moved."""
     scene = make_scene(n_frames=30, n_persons=2, noise_px=0.5, offsets=(0, 0, 0, 0), seed=3)
     start = perturb(scene.truth, rot_deg=1.0, pos_m=0.1, focal_rel=0.02, offset_frames=0.0)
     cfg = RefineConfig(max_groups=40, intrinsics_groups=60, distortion="never",
                        principal_point="always", refine_time=False, n_rounds=1,
-                       principal_point_rerun_deg=rerun_deg, principal_point_reruns=reruns)
+                       principal_point_rerun_deg=rerun_deg, principal_point_reruns=reruns,
+                       principal_point_rerun_persons=persons)
     fractions = []
     with caplog.at_level("INFO", logger="cascalib.stages.refine"):
         res = refine(scene.tracks, start, cfg, height=float(scene.heights.mean()), rng=0,
