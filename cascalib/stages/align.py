@@ -24,10 +24,10 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,6 +55,7 @@ from cascalib.stages.icp import (
     refine_sync,
 )
 from cascalib.stages.pair_evidence import (
+    ByCamera,
     ambiguity_of,
     candidate_score,
     evidence,
@@ -63,10 +64,11 @@ from cascalib.stages.pair_evidence import (
     place_camera,
     plausible,
 )
-from cascalib.stages.reconstruct import prepare
+from cascalib.stages.reconstruct import SessionData, prepare
 from cascalib.stages.rotation import rotation_search
 from cascalib.stages.sync import GridTrack, resample_tracks, search_offsets
 from cascalib.tracks import Tracks
+from cascalib.workers import WorkerPool
 
 __all__ = ["AlignConfig", "PairAlignment", "AlignmentResult", "align_cameras"]
 
@@ -177,27 +179,66 @@ def _camera_ground(tracks: Tracks, cam: Camera, fps: float | None, rho: float, f
                          dense_lanes(fine))
 
 
-class _Ready(Sequence[Any]):
-    """``[c]``: one field of camera c's :class:`_CameraGround`, once its task has made it."""
+@dataclass
+class _AlignInputs:
+    """What the tasks of :func:`align_cameras` read (worker processes inherit it)."""
 
-    def __init__(self, cameras: list[Future[_CameraGround]], name: str) -> None:
-        self._cameras, self._name = cameras, name
+    tracks: list[Tracks]
+    cameras: list[Camera]  # plane frames
+    fps: list[float | None]
+    rho: list[float]
+    fps_ref: float
+    reference: int
+    height: float
+    noise: list[tuple[NDArray[np.float64], float]]
+    pairs: list[tuple[int, int]]
+    seeds: NDArray[np.int64]  # one stream per pair: the same result in any order or worker
+    cfg: AlignConfig
+    # the canonical tracks, made by the first ambiguous pair of each worker process (or of
+    # the threads) that needs them
+    _session: list[SessionData] = field(default_factory=list)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def __len__(self) -> int:
-        return len(self._cameras)
+    def session(self) -> SessionData:
+        """The canonical tracks and frame links of the epipolar steps."""
+        with self._lock:
+            if not self._session:
+                self._session.append(prepare(self.tracks, Calibration(
+                    self.cameras, reference_camera=self.cameras[self.reference].name)))
+            return self._session[0]
 
-    def __getitem__(self, c: Any) -> Any:
-        return getattr(self._cameras[int(c)].result(), self._name)
+    def joints(self) -> PairJoints:
+        d = self.session()
+        return PairJoints(d.keypoints, d.links, self.cameras, self.rho, self.height,
+                          self.fps_ref)
 
 
-def _align_pair(i: int, j: int, coarse: Sequence[GridTrack], fine: Sequence[GridTrack],
-                lanes: Sequence[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+def _ground_task(s: _AlignInputs, c: int) -> _CameraGround:
+    return _camera_ground(s.tracks[c], s.cameras[c], s.fps[c], s.rho[c], s.fps_ref, s.cfg)
+
+
+def _pair_task(s: _AlignInputs, k: int, first: _CameraGround, second: _CameraGround
+               ) -> PairAlignment:
+    """Camera pair ``k`` from its two cameras' ground trajectories (the arguments: in worker
+    processes only these 2 of the cameras cross, 1.7 MB each on 3000 frames x 5 persons)."""
+    i, j = s.pairs[k]
+    ready = {i: first, j: second}
+    return _align_pair(i, j, {c: g.coarse for c, g in ready.items()},
+                       {c: g.fine for c, g in ready.items()},
+                       {c: g.lanes for c, g in ready.items()}, s.noise, s.fps_ref, s.cfg,
+                       np.random.default_rng(s.seeds[k]),
+                       s.joints if s.cfg.epipolar_candidates > 1 else None)
+
+
+def _align_pair(i: int, j: int, coarse: ByCamera[GridTrack], fine: ByCamera[GridTrack],
+                lanes: ByCamera[Lanes], noise: list[tuple[NDArray[np.float64], float]],
                 fps_ref: float, cfg: AlignConfig, rng: np.random.Generator,
-                joints: PairJoints | None = None) -> PairAlignment:
+                joints: Callable[[], PairJoints] | None = None) -> PairAlignment:
     """Offset candidates, ICP verification and continuous refinement for one pair.
 
     An ambiguous pair (runner-up evidence above ``cfg.ambiguity_ratio`` of the best) with a
-    plausible fit gets more candidates from an ICP scan of all offsets; with ``joints``, it is
+    plausible fit gets more candidates from an ICP scan of all offsets; with ``joints`` (made
+    only then), it is
     decided by the epipolar geometry of the people's joints among its best candidates when
     that is decisive (cost ratio at most ``cfg.epipolar_decisive``), and the clock moves to
     where the joints fit best; it stays flagged ambiguous
@@ -253,7 +294,7 @@ def _align_pair(i: int, j: int, coarse: Sequence[GridTrack], fine: Sequence[Grid
                                    lanes, noise, fps_ref, cfg, sr, rng)
                 if alt is not None:
                     fits[m] = alt
-        choice = epipolar_choice(i, j, fits, joints, cfg, rng) if len(fits) > 1 else None
+        choice = epipolar_choice(i, j, fits, joints(), cfg, rng) if len(fits) > 1 else None
         if choice is not None and choice[1] <= cfg.epipolar_decisive:
             # the pair keeps its ambiguity (and its flag): the check only compares the
             # candidates it was given, and the true one may not be among them
@@ -271,8 +312,8 @@ def _align_pair(i: int, j: int, coarse: Sequence[GridTrack], fine: Sequence[Grid
                          evidence_sigma=sig)
 
 
-def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: Sequence[GridTrack],
-                 lanes: Sequence[Lanes], noise: list[tuple[NDArray[np.float64], float]],
+def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: ByCamera[GridTrack],
+                 lanes: ByCamera[Lanes], noise: list[tuple[NDArray[np.float64], float]],
                  fps_ref: float, cfg: AlignConfig, sr: float, rng: np.random.Generator
                  ) -> SyncFit | None:
     """Sub-frame offset, rate and similarity from the ICP match at an integer offset."""
@@ -304,7 +345,7 @@ def _fit_at(i: int, j: int, offset: int, angle: float, fine: list[GridTrack],
                                                   fps_ref, cfg, sr, rng)
 
 
-def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: Sequence[Lanes],
+def _rotation_fallback(i: int, j: int, offset: int, res: IcpResult | None, lanes: ByCamera[Lanes],
                        cfg: AlignConfig, sr: float, rng: np.random.Generator
                        ) -> IcpResult | None:
     """Re-initialise the ICP by the brute-force rotation search (paper, "2D Rotation Search")."""
@@ -436,41 +477,28 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     noise = [(c.center[:2], cfg.pixel_noise / (c.focal * max(c.center[2], 0.3)))
              for c in plane_cameras]
     ij = [(i, j) for i in range(n) for j in range(i + 1, n)]
-    seeds = rng.integers(0, 2**32, len(ij))  # one stream per pair: same result in any order
+    seeds = rng.integers(0, 2**32, len(ij))
     report = progress or (lambda fraction: None)
-    with ThreadPoolExecutor(max_workers=cfg.n_workers) as pool:
-        # the canonical tracks and their frame links for the epipolar steps (the pairs'
-        # candidates and the clocks at the end), every camera's ground trajectories, then the
-        # pairs, each as soon as its two cameras are ready (no core idles between the steps).
-        # Tasks start in the order they were given: a pair waits only for tasks that run
-        session = (pool.submit(prepare, tracks, Calibration(
-            plane_cameras, reference_camera=plane_cameras[ref].name))
-            if cfg.epipolar_candidates > 1 or cfg.epipolar_sync else None)
-        per_cam = [pool.submit(_camera_ground, tracks[c], plane_cameras[c], fps[c], rho[c],
-                               fps_ref, cfg) for c in range(n)]
-
-        def align_pair(k: int) -> PairAlignment:
-            joints = None
-            if session is not None and cfg.epipolar_candidates > 1:
-                d = session.result()
-                joints = PairJoints(d.keypoints, d.links, plane_cameras, rho, height, fps_ref)
-            return _align_pair(*ij[k], _Ready(per_cam, "coarse"), _Ready(per_cam, "fine"),
-                               _Ready(per_cam, "lanes"), noise, fps_ref, cfg,
-                               np.random.default_rng(seeds[k]), joints)
-
-        found = [pool.submit(align_pair, k) for k in range(len(ij))]
-        try:
-            cams = [f.result() for f in per_cam]
-            report(0.2)
-            pairs = []
-            for f in found:
-                pairs.append(f.result())
-                report(0.2 + 0.75 * len(pairs) / len(ij))
-            data = None if session is None else session.result()
-        except BaseException:
-            for f in found:  # a camera's error: the pairs not started yet are not run
-                f.cancel()
-            raise
+    # every camera's ground trajectories, then each camera pair as soon as its two cameras
+    # are ready, in forked worker processes (their Python loops hold the GIL), which inherit
+    # the inputs; meanwhile the canonical tracks of the epipolar clock step, here
+    shared = _AlignInputs(tracks, plane_cameras, fps, rho, fps_ref, ref, height, noise, ij,
+                          seeds, cfg)
+    with WorkerPool(cfg.n_workers, shared, processes=cfg.processes) as pool:
+        per_cam = [pool.submit(_ground_task, c) for c in range(n)]
+        data = shared.session() if cfg.epipolar_sync else None
+        cams: list[_CameraGround] = []
+        found: dict[int, Future[PairAlignment]] = {}
+        for c, f in enumerate(per_cam):
+            cams.append(f.result())  # a camera's error: the pairs not started are not run
+            for i in range(c):
+                k = ij.index((i, c))
+                found[k] = pool.submit(_pair_task, k, cams[i], cams[c])
+        report(0.2)
+        pairs = []
+        for k in range(len(ij)):
+            pairs.append(found[k].result())
+            report(0.2 + 0.75 * len(pairs) / len(ij))
     ground = [c.ground for c in cams]
     fine = [c.fine for c in cams]
     lanes = [c.lanes for c in cams]

@@ -130,8 +130,18 @@ class AlignConfig(BaseModel):
         0.1, ge=0, description="Gaussian smoothing (s) of the trajectories before the sub-frame "
         "fit; removes the half-frame bias of interpolating noisy samples.")
     n_workers: int = Field(
-        2, ge=1, description="Threads aligning camera pairs in parallel (numpy and the FFTs "
-        "release the GIL).")
+        2, ge=1, description="Workers making the cameras' ground trajectories and aligning the "
+        "camera pairs in parallel (processes or threads, see processes), and threads of the "
+        "camera vote and the epipolar clock step.")
+    processes: bool = Field(
+        True, description="Run the ground trajectories and the camera pairs in forked worker "
+        "processes where this process can fork (Linux, not a daemonic process such as a "
+        "Celery prefork worker), else in threads. Their Python loops hold the GIL: on 4 "
+        "cameras x 3000 frames x 5 persons and 2 cores the ground trajectories took 2.3 s in "
+        "two threads (2.0-2.3 s in one), 1.1-1.2 s in two processes; the camera pairs 4.1 s in "
+        "threads, 3.2-3.4 s in processes. Stages II-IV (bench_sync.py --only time, 5 runs, "
+        "alternating with the threads): median wall 6.10 and 6.93 s in threads, 5.03, 3.80 "
+        "and 3.95 s in processes (CPU 8.5-8.9 s -> 6.9-7.0 s). The results are the same.")
     refine_sigma: float = Field(
         0.03, gt=0, description="Noise floor (m) of ground points in the sub-frame offset / "
         "rate fit (ankle jitter of the gait); added to the per-camera range-dependent noise.")

@@ -24,7 +24,6 @@ Huber loss, which let swapped joints pull the clock; with its Cauchy loss all 35
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -34,7 +33,13 @@ from cascalib.camera import Camera
 from cascalib.stages.align_config import AlignConfig
 from cascalib.stages.epipolar_sync import pair_cost, quadratic_minimum
 from cascalib.stages.icp import IcpResult, Lanes, SyncFit
-from cascalib.stages.pair_evidence import evidence, evidence_sigma, pair_icp, place_camera
+from cascalib.stages.pair_evidence import (
+    ByCamera,
+    evidence,
+    evidence_sigma,
+    pair_icp,
+    place_camera,
+)
 from cascalib.stages.sync import SyncCandidate, SyncCurve
 
 __all__ = ["PairJoints", "epipolar_choice", "scan_candidates"]
@@ -125,7 +130,7 @@ def _lowest_cost(i: int, j: int, fit: SyncFit, joints: PairJoints, cfg: AlignCon
 
 
 def scan_candidates(i: int, j: int, curve: SyncCurve, results: list[IcpResult | None],
-                    lanes: Sequence[Lanes], fps_ref: float, cfg: AlignConfig, sr: float
+                    lanes: ByCamera[Lanes], fps_ref: float, cfg: AlignConfig, sr: float
                     ) -> tuple[SyncCurve, list[IcpResult | None]]:
     """More candidates for an ambiguous pair (one whose candidates include a plausible fit)
     from quick ICP at offsets ``cfg.scan_seconds`` apart (at most ``cfg.scan_max_offsets``

@@ -6,7 +6,8 @@ scan and epipolar check of ambiguous pairs (:mod:`~cascalib.stages.ambiguous_pai
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import TypeAlias, TypeVar
 
 import numpy as np
 
@@ -15,11 +16,15 @@ from cascalib.geometry import rot_z
 from cascalib.stages.align_config import AlignConfig
 from cascalib.stages.icp import IcpResult, Lanes, Similarity2D, icp_pair
 
-__all__ = ["ambiguity_of", "candidate_score", "evidence", "evidence_sigma", "pair_icp",
+T = TypeVar("T")
+# per-camera inputs of a pair's steps: every camera's, or only the pair's two by index
+ByCamera: TypeAlias = Sequence[T] | Mapping[int, T]
+
+__all__ = ["ByCamera", "ambiguity_of", "candidate_score", "evidence", "evidence_sigma", "pair_icp",
            "place_camera", "plausible"]
 
 
-def pair_icp(i: int, j: int, offset: int, angle: float, lanes: Sequence[Lanes], cfg: AlignConfig,
+def pair_icp(i: int, j: int, offset: int, angle: float, lanes: ByCamera[Lanes], cfg: AlignConfig,
              sr: float, quick: bool = False) -> IcpResult | None:
     """Trimmed ICP of cameras ``i`` and ``j`` at an integer offset with ``cfg``'s settings;
     ``quick`` compares a quarter of the frames in 8 iterations (a first look at a candidate)."""

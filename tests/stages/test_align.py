@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from align_scene import AlignScene, make_scene, paper_walker_scene, simulated_windows
@@ -227,15 +229,16 @@ def test_a_short_coincidence_does_not_outscore_the_whole_recording() -> None:
         assert abs(err) < 0.5, camera
 
 
-def test_a_cameras_error_stops_the_alignment(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The camera pairs start while other cameras' ground trajectories are still being made:
-    an error in one of those reaches the caller as it was raised, and the pairs that need the
-    camera do not go on without it."""
+@pytest.mark.parametrize("processes", [True, False])
+def test_a_cameras_error_stops_the_alignment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                             processes: bool) -> None:
+    """The camera pairs start while other cameras' ground trajectories are still being made,
+    in worker processes or threads: an error in one of those reaches the caller as it was
+    raised (camera and all), and the pairs that need the camera do not go on without it."""
     import cascalib.stages.align as align
 
     sc = make_scene(n_cams=3, n_persons=2, n_ref_frames=300, offsets=[0.0, 20.0, -10.0], seed=1)
     real = align._ground
-    paired: list[tuple[int, int]] = []
     real_pair = align._align_pair
 
     def failing(tracks, cam, fps, cfg):  # type: ignore[no-untyped-def]
@@ -245,12 +248,17 @@ def test_a_cameras_error_stops_the_alignment(monkeypatch: pytest.MonkeyPatch) ->
 
     def pair(i, j, *args, **kwargs):  # type: ignore[no-untyped-def]
         out = real_pair(i, j, *args, **kwargs)
-        paired.append((i, j))
+        (tmp_path / f"pair{i}{j}").touch()  # seen from a worker process too
         return out
 
     monkeypatch.setattr(align, "_ground", failing)
     monkeypatch.setattr(align, "_align_pair", pair)
     with pytest.raises(InputError, match="no feet") as err:
-        align_cameras(sc.tracks, sc.plane, rng=0)
-    assert err.value.camera == "cam1"
-    assert all(1 not in p for p in paired), paired
+        align_cameras(sc.tracks, sc.plane, AlignConfig(processes=processes), rng=0)
+    assert err.value.camera == "cam1" and err.value.message == "no feet"
+    done = sorted(f.name for f in tmp_path.iterdir())
+    assert all("1" not in name for name in done), done
+    # the marker files do show pairs: without the error, every pair leaves one
+    monkeypatch.setattr(align, "_ground", real)
+    align_cameras(sc.tracks, sc.plane, AlignConfig(processes=processes), rng=0)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["pair01", "pair02", "pair12"]
