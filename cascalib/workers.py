@@ -14,6 +14,7 @@ worker, which may not have children) it runs the same tasks in threads.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from typing import Any, TypeVar
@@ -32,7 +33,27 @@ def can_fork() -> bool:
             and not multiprocessing.current_process().daemon)
 
 
-def _inherit(shared: Any) -> None:
+def die_with_parent() -> None:
+    """Linux: have the kernel kill this process when its parent dies.
+
+    A job process the service kills (cancelled, or its worker shutting down), or a caller
+    killed otherwise, leaves no orphan behind: a pool's worker would wait on its task queue
+    forever. Elsewhere this does nothing.
+    """
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _inherit(shared: Any, caller: int) -> None:
+    die_with_parent()
+    if os.getppid() != caller:  # the caller died before the line above took effect
+        os._exit(1)
     _SHARED[:] = [shared]
 
 
@@ -68,7 +89,8 @@ class WorkerPool:
         if self.forked:
             self._pool = ProcessPoolExecutor(n_workers,
                                              mp_context=multiprocessing.get_context("fork"),
-                                             initializer=_inherit, initargs=(shared,))
+                                             initializer=_inherit,
+                                             initargs=(shared, os.getpid()))
         else:
             self._pool = ThreadPoolExecutor(n_workers)
 

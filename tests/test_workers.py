@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -67,3 +70,42 @@ def test_a_daemonic_process_runs_the_tasks_in_threads() -> None:
     forked, total = queue.get(timeout=60)
     proc.join(timeout=60)
     assert (forked, total) == (False, 2.0)
+
+
+_CALLER = """
+import os, sys, time
+from cascalib.workers import WorkerPool
+
+def pid(shared, k):
+    return os.getpid()
+
+pool = WorkerPool(2, None)
+print(*sorted({pool.submit(pid, k).result() for k in range(4)}), flush=True)
+time.sleep(120)  # killed here, the pool still open
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has died
+    except FileNotFoundError:
+        return False
+
+
+@needs_fork
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
+def test_the_workers_die_with_a_killed_caller() -> None:
+    """A caller killed outright (a cancelled service job's process gets SIGKILL) leaves no
+    worker waiting on its task queue forever."""
+    caller = subprocess.Popen([sys.executable, "-c", _CALLER], stdout=subprocess.PIPE, text=True)
+    assert caller.stdout is not None
+    workers = [int(p) for p in caller.stdout.readline().split()]
+    assert workers and caller.pid not in workers
+    assert all(_alive(p) for p in workers)
+    caller.kill()
+    caller.wait(timeout=30)
+    deadline = time.monotonic() + 30
+    while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(p) for p in workers), workers

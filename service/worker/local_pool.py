@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from multiprocessing.process import BaseProcess
 from typing import Any
 
+from cascalib.workers import die_with_parent
 from service import store as st
 from service.core.config import Settings
 from service.models import utcnow
@@ -39,19 +40,6 @@ PRELOAD = ("service.worker.runner", "service.inputs", "cascalib.formats", "casca
 class _Running:
     process: BaseProcess
     attempt: int
-
-
-def die_with_parent() -> None:
-    """Linux: have the kernel kill this process when the server dies (no orphan keeps running
-    a job that the restarted server has already re-queued)."""
-    try:
-        import ctypes
-        import signal
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def run_claimed_job(job_id: str, attempt: int, settings: Settings) -> None:
