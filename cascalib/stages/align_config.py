@@ -135,8 +135,8 @@ class AlignConfig(BaseModel):
         "camera vote and the epipolar clock step.")
     processes: bool = Field(
         True, description="Run the ground trajectories and the camera pairs in forked worker "
-        "processes where this process can fork (Linux, not a daemonic process such as a "
-        "Celery prefork worker), else in threads. Their Python loops hold the GIL: on 4 "
+        "processes where this process can fork (Linux, not a daemonic process), else in "
+        "threads. Their Python loops hold the GIL: on 4 "
         "cameras x 3000 frames x 5 persons and 2 cores the ground trajectories took 2.3 s in "
         "two threads (2.0-2.3 s in one), 1.1-1.2 s in two processes; the camera pairs 4.1 s in "
         "threads, 3.2-3.4 s in processes. Stages II-IV (bench_sync.py --only time, 5 runs, "
