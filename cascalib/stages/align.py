@@ -194,8 +194,9 @@ class _AlignInputs:
     pairs: list[tuple[int, int]]
     seeds: NDArray[np.int64]  # one stream per pair: the same result in any order or worker
     cfg: AlignConfig
-    # the canonical tracks, made by the first ambiguous pair of each worker process (or of
-    # the threads) that needs them
+    # the canonical tracks, made at most once per process: by the caller for the epipolar
+    # clock step, and by a forked worker (forked before the caller made them) for its first
+    # ambiguous pair; worker threads share the caller's
     _session: list[SessionData] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
