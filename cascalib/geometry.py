@@ -13,6 +13,7 @@ __all__ = [
     "rot_z",
     "umeyama",
     "project_to_so3",
+    "skew",
 ]
 
 
@@ -61,6 +62,15 @@ def rotation_angle_deg(R: ArrayLike) -> float:
     c = (np.trace(R) - 1.0) / 2.0
     s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     return float(np.degrees(np.arctan2(s, c)))
+
+
+def skew(v: ArrayLike) -> NDArray[np.float64]:
+    """Cross-product matrices: (..., 3) -> (..., 3, 3), ``skew(v) @ w == np.cross(v, w)``."""
+    v = np.asarray(v, dtype=np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 def rot_z(angle: float) -> NDArray[np.float64]:

@@ -227,7 +227,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
     aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                            progress=lambda f: report("sync", f), height=cfg.height)
+                            progress=lambda f: report("sync", f), height=cfg.height,
+                            fixed_intrinsics=tuple(cfg.known_intrinsics))
     initial = aligned.calibration
     if cfg.synchronized:
         initial = _synchronized(initial, tracks)

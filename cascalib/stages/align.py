@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -44,6 +44,7 @@ from cascalib.stages.align_global import (
 )
 from cascalib.stages.ambiguous_pairs import PairJoints, epipolar_choice, scan_candidates
 from cascalib.stages.consensus import CandidateEdge, vote_cameras
+from cascalib.stages.epipolar_rig import RigRefinement, refine_rig
 from cascalib.stages.epipolar_sync import EpipolarClocks, epipolar_clocks
 from cascalib.stages.ground import GroundTracks, ground_trajectories
 from cascalib.stages.icp import (
@@ -98,8 +99,11 @@ class AlignmentResult:
     transforms : list of Similarity2D
         Per camera, own plane frame -> reference plane frame.
     epipolar : EpipolarClocks, optional
-        The sub-frame clock correction of the last step (``AlignConfig.epipolar_sync``), its
-        pairwise cost curves included; ``calibration`` carries its clocks.
+        The sub-frame clock correction (``AlignConfig.epipolar_sync``), its pairwise cost
+        curves included; ``calibration`` carries its clocks.
+    rig : RigRefinement, optional
+        The last step, the rig from the epipolar geometry (``AlignConfig.epipolar_rig``);
+        ``calibration`` carries its cameras when it was kept.
     """
 
     calibration: Calibration
@@ -110,6 +114,7 @@ class AlignmentResult:
     transforms: list[Similarity2D]
     diagnostics: dict[str, object] = field(default_factory=dict)
     epipolar: EpipolarClocks | None = None
+    rig: RigRefinement | None = None
 
 
 def _fps(tracks: Tracks, camera: Camera) -> float | None:
@@ -435,7 +440,8 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                   config: AlignConfig | None = None, *, reference: str | int | None = None,
                   rng: np.random.Generator | int | None = None,
                   progress: Callable[[float], None] | None = None,
-                  height: float = 1.70) -> AlignmentResult:
+                  height: float = 1.70, fixed_intrinsics: Sequence[str] = ()
+                  ) -> AlignmentResult:
     """Synchronise all cameras and place them on the reference camera's ground plane.
 
     Parameters
@@ -452,8 +458,11 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
         ``progress(fraction)`` when the ground trajectories are made and as each camera pair is
         aligned (pairs take most of the time).
     height : float
-        Mean person height (m): the epipolar clock step matches persons across cameras by
-        their ground positions, from the hips where the feet are not seen.
+        Mean person height (m): the epipolar steps match persons across cameras by their
+        ground positions, from the hips where the feet are not seen.
+    fixed_intrinsics : sequence of str
+        Cameras whose intrinsics are known: the rig refinement holds their focal length and
+        principal point.
 
     Returns
     -------
@@ -487,7 +496,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                           seeds, cfg)
     with WorkerPool(cfg.n_workers, shared, processes=cfg.processes) as pool:
         per_cam = [pool.submit(_ground_task, c) for c in range(n)]
-        data = shared.session() if cfg.epipolar_sync else None
+        data = shared.session() if cfg.epipolar_sync or cfg.epipolar_rig else None
         cams: list[_CameraGround] = []
         found: dict[int, Future[PairAlignment]] = {}
         for c, f in enumerate(per_cam):
@@ -514,14 +523,24 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                                "reference: the cameras may not see the same people, or too "
                                "few walking people were detected", camera=tracks[ref].camera)
     result = _result(tracks, plane_cameras, ground, pairs, T, a, b, rho, fps, ref, cfg)
-    if not cfg.epipolar_sync:
-        return result
     report(0.95)
-    epi = epipolar_clocks(tracks, result.calibration, height=height,
-                          window=cfg.epipolar_window_frames, n_times=cfg.epipolar_times,
-                          max_points=cfg.epipolar_points, iterations=cfg.epipolar_iterations,
-                          n_workers=cfg.n_workers, rng=rng, data=data)
-    return replace(result, calibration=epi.calibration, epipolar=epi)
+    if cfg.epipolar_sync:
+        epi = epipolar_clocks(tracks, result.calibration, height=height,
+                              window=cfg.epipolar_window_frames, n_times=cfg.epipolar_times,
+                              max_points=cfg.epipolar_points,
+                              iterations=cfg.epipolar_iterations, n_workers=cfg.n_workers,
+                              rng=rng, data=data)
+        result = replace(result, calibration=epi.calibration, epipolar=epi)
+    if cfg.epipolar_rig and data is not None:
+        rig = refine_rig(data, result.calibration, height=height,
+                         fixed_intrinsics=fixed_intrinsics,
+                         held=[n for n, fl in result.flags.items() if "not_aligned" in fl],
+                         n_times=cfg.epipolar_times, max_points=cfg.rig_points,
+                         tilt_sigma_deg=cfg.rig_tilt_sigma_deg, focal_sigma=cfg.rig_focal_sigma,
+                         principal_point_sigma=cfg.rig_principal_point_sigma,
+                         rounds=cfg.rig_rounds, rng=rng)
+        result = replace(result, calibration=rig.calibration, rig=rig)
+    return result
 
 
 def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks],

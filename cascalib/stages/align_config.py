@@ -195,3 +195,31 @@ class AlignConfig(BaseModel):
     epipolar_points: int = Field(
         8000, ge=100, description="Joint correspondences per camera pair (a random subset of "
         "the matched persons beyond).")
+
+    # -- the rig from the epipolar geometry (stages/epipolar_rig.py) ---------------------------
+    epipolar_rig: bool = Field(
+        True, description="Last, refine every camera's focal length, principal point, rotation "
+        "and centre so that the joints two cameras see of the same persons fit their epipolar "
+        "geometry (no 3D points; priors hold the ground, heading and size of the rig where "
+        "stage IV put them; stages/epipolar_rig.py). On 24 whole-cascade scenes (terrace, lab "
+        "ring, crowd, periodic; seeds 0-5; 40 s) it took the worst relative rotation per scene "
+        "from 1.07-4.86 to 0.38-2.38 deg, the worst camera centre after a similarity alignment "
+        "from 0.10-0.49 m to 0.005-0.13 m and the worst focal length from 1.7-14.9 % to "
+        "0.2-2.6 % off.")
+    rig_rounds: int = Field(
+        2, ge=1, description="Associations and solves of the rig refinement: the persons are "
+        "matched again at the refined rig (in a crowd stage IV's rig mismatches some).")
+    rig_points: int = Field(
+        3000, ge=100, description="Joint correspondences per camera pair in the rig refinement "
+        "(a random subset of the matched persons beyond).")
+    rig_tilt_sigma_deg: float = Field(
+        1.0, gt=0, description="Prior sd (deg) of each camera's tilt around stage I's in the rig "
+        "refinement (stage I's tilts were 0.3-2.7 deg off on the 24 scenes).")
+    rig_focal_sigma: float = Field(
+        0.1, gt=0, description="Prior sd of each log focal length around stage I's in the rig "
+        "refinement.")
+    rig_principal_point_sigma: float = Field(
+        0.02, gt=0, description="Prior sd of the principal point around the image centre in the "
+        "rig refinement, as a fraction of the image width (Stage V's principal_point_sigma). "
+        "Without the principal points free, the refinement left relative rotations 1-2.5 deg "
+        "off on a periodic scene (0.1-0.6 deg with them).")

@@ -58,8 +58,9 @@ from cascalib.stages.track_interpolation import interpolate_views, person_distan
 from cascalib.stages.triangulation import cauchy_weight
 from cascalib.tracks import Tracks
 
-__all__ = ["EpipolarClocks", "PairShift", "epipolar_clocks", "fit_fundamental",
-           "hartley_normalization", "pair_cost", "quadratic_minimum", "sampson_distance"]
+__all__ = ["EPIPOLAR_JOINTS", "EpipolarClocks", "PairShift", "cauchy_cost", "epipolar_clocks",
+           "first_association", "fit_fundamental", "hartley_normalization", "pair_cost",
+           "pinhole_pixels", "quadratic_minimum", "sampson_distance", "shared_groups"]
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +135,7 @@ def hartley_normalization(x: NDArray[np.float64]) -> tuple[NDArray[np.float64],
 
 
 def _epipolar_terms(F: NDArray[np.float64], ha: NDArray[np.float64], hb: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Algebraic residual ``|x_a^T F x_b|`` of homogeneous pixels ``ha``, ``hb`` (N, 3) and its
     gradient norm over the four pixel coordinates, each (N,)."""
     fb = hb @ F.T  # F x_b
@@ -226,7 +227,7 @@ def _fit_fundamental(a: _View, b: _View, scale_px: float, n_iter: int
     return F, d
 
 
-def _robust_cost(d: NDArray[np.float64], k: float) -> float:
+def cauchy_cost(d: NDArray[np.float64], k: float) -> float:
     """Mean Cauchy loss of distances ``d`` at scale ``k`` (px^2: ``d^2 / 2`` for small ``d``).
 
     A Huber loss here let the outliers (swapped joints, wrong detections) count in proportion
@@ -237,7 +238,7 @@ def _robust_cost(d: NDArray[np.float64], k: float) -> float:
     return float(np.mean(0.5 * k * k * np.log1p((d / k) ** 2)))
 
 
-def _pixels(cam: Camera, uv: NDArray[np.float64]) -> NDArray[np.float64]:
+def pinhole_pixels(cam: Camera, uv: NDArray[np.float64]) -> NDArray[np.float64]:
     """Distortion-free pixels (an F relates pinhole images)."""
     return cam.undistort_pixels(uv) if cam.has_distortion else uv
 
@@ -256,12 +257,12 @@ def quadratic_minimum(x: NDArray[np.float64], y: NDArray[np.float64], centre: fl
 
 
 #: Canonical indices of the joints the fundamental matrices are fitted to (Stage V's).
-_JOINTS = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
+EPIPOLAR_JOINTS = np.array([CANONICAL_INDEX[n] for n in DEFAULT_JOINTS])
 
 
-def _first_association(views: list[NDArray[np.float64]], cams: list[Camera],
-                       times: NDArray[np.float64], height: float, *,
-                       consistency: float | None = None, reference: int = 0) -> Association:
+def first_association(views: list[NDArray[np.float64]], cams: list[Camera],
+                      times: NDArray[np.float64], height: float, *,
+                      consistency: float | None = None, reference: int = 0) -> Association:
     """Persons matched across cameras as in Stage V's first round (gates sized for the errors
     stage IV leaves), without track links; ``consistency`` overrides its triangulation gate."""
     gates = RefineConfig().association_gates(refined=False)
@@ -271,9 +272,9 @@ def _first_association(views: list[NDArray[np.float64]], cams: list[Camera],
                      **gates)
 
 
-def _shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,
-                   rng: np.random.Generator
-                   ) -> tuple[NDArray[np.int64], NDArray[np.bool_]] | None:
+def shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,
+                  rng: np.random.Generator
+                  ) -> tuple[NDArray[np.int64], NDArray[np.bool_]] | None:
     """Groups whose person two views share in at least 8 confident joints (confidence >=
     0.3; a random subset of about ``max_points`` joints beyond that), and the (G, J) mask of
     the joints both see; None with fewer than 10 such groups. ``obs_a``, ``obs_b``: (G, J, 3).
@@ -301,11 +302,11 @@ def _pair_shift(i: int, j: int, obs: NDArray[np.float64], times: NDArray[np.floa
     ``widen``, a lowest sample on the window's edge (a larger error) is searched again over
     twice the window. None when the pair shares too few joints or the search finds nothing.
     """
-    shared = _shared_groups(obs[:, i], obs[:, j], max_points, rng)
+    shared = shared_groups(obs[:, i], obs[:, j], max_points, rng)
     if shared is None:
         return None
     groups, ok = shared
-    pair = _PairData(_pixels(cams[i], obs[groups, i, :, :2]), obs[groups, j, :, :2],
+    pair = _PairData(pinhole_pixels(cams[i], obs[groups, i, :, :2]), obs[groups, j, :, :2],
                      (times[groups] - cams[j].time_offset) / cams[j].time_rate, ok[groups],
                      # the same person within a quarter of its size (or 20 px) of where it was
                      np.maximum(20.0, 0.25 * norm_xy(joint_extent(obs[groups, j]))),
@@ -363,7 +364,8 @@ def _search(pair: _PairData, window: float, n_samples: int, huber_px: float,
     if n < 50:
         return None
     view_a = _View.of(pair.xa[ok])
-    costs = np.array([_robust_cost(_fit_fundamental(view_a, _View.of(_pixels(pair.cam_b, x[ok])),
+    costs = np.array([cauchy_cost(_fit_fundamental(view_a,
+                                                   _View.of(pinhole_pixels(pair.cam_b, x[ok])),
                                                    huber_px, 4)[1], huber_px)
                       for x in xb])
     k = int(np.argmin(costs))
@@ -464,17 +466,17 @@ def pair_cost(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.int64
     """
     views = [interpolate_views(k, lk, (times - c.time_offset) / c.time_rate)
              for k, lk, c in zip(keypoints, links, cams, strict=True)]
-    assoc = _first_association(views, cams, times, height, consistency=np.inf)
-    obs = assoc.obs[:, :, _JOINTS]
-    shared = _shared_groups(obs[:, 0], obs[:, 1], max_points, np.random.default_rng(rng))
+    assoc = first_association(views, cams, times, height, consistency=np.inf)
+    obs = assoc.obs[:, :, EPIPOLAR_JOINTS]
+    shared = shared_groups(obs[:, 0], obs[:, 1], max_points, np.random.default_rng(rng))
     if shared is None:
         return None
     groups, ok = shared
     sel = ok[groups]
-    xa = _pixels(cams[0], obs[groups, 0, :, :2])[sel]
-    xb = _pixels(cams[1], obs[groups, 1, :, :2])[sel]
+    xa = pinhole_pixels(cams[0], obs[groups, 0, :, :2])[sel]
+    xb = pinhole_pixels(cams[1], obs[groups, 1, :, :2])[sel]
     d = _fit_fundamental(_View.of(xa), _View.of(xb), huber_px, 4)[1]
-    return _robust_cost(d, huber_px), int(sel.sum())
+    return cauchy_cost(d, huber_px), int(sel.sum())
 
 
 def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: float = 1.70,
@@ -533,7 +535,7 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
     if data is None:
         data = prepare(list(tracks), calibration)
     data = clock_check_times(data, n_times)
-    joints = _JOINTS
+    joints = EPIPOLAR_JOINTS
     kps = [np.ascontiguousarray(k[:, :, joints, :2]) for k in data.keypoints]
     cams = list(calibration.cameras)
     n_cams = len(cams)
@@ -541,7 +543,7 @@ def epipolar_clocks(tracks: list[Tracks], calibration: Calibration, *, height: f
     pairs: list[PairShift] = []
     accepted = np.zeros(n_cams, dtype=bool)
     for it in range(iterations):
-        assoc = _first_association(views_at(data, cams), cams, data.times, height,
+        assoc = first_association(views_at(data, cams), cams, data.times, height,
                                    reference=data.reference)
         # the first search spans the window (twice it for a pair whose best shift lies on its
         # edge); later ones start closer and look half as far

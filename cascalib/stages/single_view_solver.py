@@ -29,6 +29,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from cascalib.geometry import skew
+
 __all__ = [
     "GroundModel",
     "Observations",
@@ -242,14 +244,6 @@ def hartley_scale(points: F64, centre: F64) -> float:
     return float(np.sqrt(2.0) / max(mean, 1e-9))
 
 
-def _skew(v: F64) -> F64:
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
 def _homog(p: F64) -> F64:
     return np.concatenate([p, np.ones(p.shape[:-1] + (1,))], -1)
 
@@ -271,7 +265,7 @@ def vanishing_point(obs: Observations, c: F64, scale: float) -> tuple[F64, F64]:
     valid = obs.valid
     a = _homog((obs.ankle - c) * scale)                       # (N, 3)
     u = _homog((np.where(valid[..., None], obs.upper, 0.0) - c) * scale)  # (N, K, 3)
-    S = _skew(u) * valid[..., None, None]                       # (N, K, 3, 3)
+    S = skew(u) * valid[..., None, None]                       # (N, K, 3, 3)
     delta = np.where(valid, obs.offset, 0.0)
     # stacked over k: b_i = [u_k]x a_i (N, K, 3), C_i = delta_k [u_k]x (N, K, 3, 3)
     b = np.einsum("nkij,nj->nki", S, a)
