@@ -538,6 +538,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
                          n_times=cfg.epipolar_times, max_points=cfg.rig_points,
                          tilt_sigma_deg=cfg.rig_tilt_sigma_deg, focal_sigma=cfg.rig_focal_sigma,
                          principal_point_sigma=cfg.rig_principal_point_sigma,
+                         radial_sigma=cfg.rig_radial_sigma,
                          rounds=cfg.rig_rounds, rng=rng)
         result = replace(result, calibration=rig.calibration, rig=rig)
     return result
