@@ -57,6 +57,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from numpy.typing import NDArray
@@ -122,8 +123,8 @@ class RigRefinement:
 
 def fundamental_of(cam_i: Camera, cam_j: Camera) -> NDArray[np.float64]:
     """The fundamental matrix of two pinhole cameras, ``x_i^T F x_j = 0`` (H&Z 9.2)."""
-    return _fundamental((cam_i.R, cam_i.center, np.linalg.inv(cam_i.K)),
-                        (cam_j.R, cam_j.center, np.linalg.inv(cam_j.K)))
+    return _fundamental((cam_i.R, cam_i.center, np.linalg.inv(cam_i.K).astype(np.float64)),
+                        (cam_j.R, cam_j.center, np.linalg.inv(cam_j.K).astype(np.float64)))
 
 
 def _fundamental(a: tuple[NDArray[np.float64], ...], b: tuple[NDArray[np.float64], ...]
@@ -348,16 +349,15 @@ def _solve(pairs: list[_Pair], rig: _Rig, pri: _Priors, free: NDArray[np.bool_],
             mine = np.r_[mine, bent].astype(int)
             moved = [np.einsum("ij,ij->i", d_ha, pair.ra) if owner[c] == pair.i else
                      np.einsum("ij,ij->i", d_hb, pair.rb) for c in bent]
-            B = (w * _cauchy_slope(d, k))[:, None] * np.c_[dd_dF @ dF, *moved] if moved else \
-                (w * _cauchy_slope(d, k))[:, None] * (dd_dF @ dF)
+            B = (w * _cauchy_slope(d, k))[:, None] * np.column_stack([dd_dF @ dF, *moved])
             A[np.ix_(mine, mine)] += B.T @ B
             g[mine] += B.T @ (w * _cauchy_residual(d, k))
         r0 = _prior_residuals(P, rig, pri)
         Jp = np.empty((len(r0), len(cols)))
-        for col, flat in enumerate(cols):
+        for u, unknown in enumerate(cols):
             Ph = P.copy()
-            Ph.flat[flat] += 1e-7
-            Jp[:, col] = (_prior_residuals(Ph, rig, pri) - r0) / 1e-7
+            Ph.flat[unknown] += 1e-7
+            Jp[:, u] = (_prior_residuals(Ph, rig, pri) - r0) / 1e-7
         return A + Jp.T @ Jp, g + Jp.T @ r0
 
     def cost(P: NDArray[np.float64], k: float) -> float:
@@ -365,9 +365,14 @@ def _solve(pairs: list[_Pair], rig: _Rig, pri: _Priors, free: NDArray[np.bool_],
 
     x = start.ravel()[cols]
     for k in scales:
-        x = _levenberg_marquardt(lambda v, k=k: float(np.sum(residuals(v, k) ** 2)),
-                                 lambda v, k=k: normal_equations(v, k), x)
+        x = _levenberg_marquardt(partial(_sum_of_squares, residuals, k=k),
+                                 partial(normal_equations, k=k), x)
     return full(x), cost
+
+
+def _sum_of_squares(residuals: Callable[[NDArray[np.float64], float], NDArray[np.float64]],
+                    x: NDArray[np.float64], k: float) -> float:
+    return float(np.sum(residuals(x, k) ** 2))
 
 
 def _levenberg_marquardt(cost: Callable[[NDArray[np.float64]], float],
