@@ -1,4 +1,5 @@
-"""Stage IV's last step: sub-frame clocks from the epipolar geometry of the people's joints.
+"""Stage IV's sub-frame clocks from the epipolar geometry of the people's joints (the step
+before the last, which refines the rig from the same geometry: stages/epipolar_rig.py).
 
 Stage III measures the clocks on ground trajectories (ankles back-projected onto each camera's
 plane). In a crowd those carry decimetres of noise per point, so its offsets scatter by about
