@@ -205,16 +205,17 @@ def _pairs(data: SessionData, cams: list[Camera], height: float, usable: Sequenc
 
 
 class _Rig:
-    """The rig as a function of the unknowns: ``p`` (C, 9) changes from the start."""
+    """The rig as a function of the unknowns: ``P`` (C, 10) changes from the start."""
 
     def __init__(self, cams: list[Camera]) -> None:
         self.R0 = [c.R for c in cams]
         self.C0 = np.array([c.center for c in cams])
         self.f0 = np.array([c.focal for c in cams])
         self.pp0 = np.array([c.principal_point for c in cams])
+        self.spread0 = _spread(self.C0)
 
     def camera(self, c: int, p: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        """Camera ``c`` at the changes ``p`` (9,): R, centre and K^-1."""
+        """Camera ``c`` at the changes ``p`` (10,): R, centre and K^-1."""
         # the rotation's change is about the world axes: its x, y parts tilt the camera, its z
         # part turns it about the vertical
         R = self.R0[c] @ rodrigues_to_matrix(p[_ROT])
@@ -224,7 +225,7 @@ class _Rig:
         return R, self.C0[c] + p[_CENTRE], K_inv
 
     def cameras(self, cams: list[Camera], P: NDArray[np.float64]) -> list[Camera]:
-        """``cams`` changed by ``P`` (C, 9) (distortion and clocks kept)."""
+        """``cams`` changed by ``P`` (C, 10) (distortion and clocks kept)."""
         out = []
         for c, cam in enumerate(cams):
             R, C, K_inv = self.camera(c, P[c])
@@ -251,17 +252,20 @@ class _Priors:
     anchor: int
 
 
+def _spread(C: NDArray[np.float64]) -> float:
+    """RMS distance (m) of camera centres ``C`` (C, 3) from their mean: the rig's size."""
+    return float(np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, 1))))
+
+
 def _prior_residuals(P: NDArray[np.float64], rig: _Rig, pri: _Priors) -> NDArray[np.float64]:
-    """Prior residuals (in sds) of the changes ``P`` (C, 9); the anchor's heading and ground
+    """Prior residuals (in sds) of the changes ``P`` (C, 10); the anchor's heading and ground
     position, and the spread of the centres, as near-hard constraints (sd 1e-3)."""
-    C = rig.C0 + P[:, _CENTRE]
-    spread = np.sqrt(np.mean(np.sum((C - C.mean(0)) ** 2, 1)))
-    spread0 = np.sqrt(np.mean(np.sum((rig.C0 - rig.C0.mean(0)) ** 2, 1)))
+    size = np.log(_spread(rig.C0 + P[:, _CENTRE]) / rig.spread0)
     a = pri.anchor
     return np.concatenate([P[:, 0] / pri.tilt, P[:, 1] / pri.tilt, P[:, _FOCAL] / pri.focal,
                            P[:, _RADIAL] / pri.radial,
                            (P[:, _PP] / pri.pp[:, None]).ravel(), P[:, 5] / pri.height,
-                           1e3 * np.array([P[a, 2], P[a, 3], P[a, 4], np.log(spread / spread0)])])
+                           1e3 * np.array([P[a, 2], P[a, 3], P[a, 4], size])])
 
 
 def _cauchy_residual(d: NDArray[np.float64], k: float) -> NDArray[np.float64]:
@@ -300,7 +304,7 @@ def _sampson_gradient(F: NDArray[np.float64], ha: NDArray[np.float64], hb: NDArr
 def _solve(pairs: list[_Pair], rig: _Rig, pri: _Priors, free: NDArray[np.bool_],
            scales: list[float], weight: NDArray[np.float64], start: NDArray[np.float64]
            ) -> tuple[NDArray[np.float64], Callable[[NDArray[np.float64], float], float]]:
-    """The changes (C, 9) that minimise the pairs' Cauchy losses plus the priors, the loss
+    """The changes (C, 10) that minimise the pairs' Cauchy losses plus the priors, the loss
     lowered through ``scales`` (px), from the changes ``start``; and the data cost (mean
     loss) of any changes at a scale. ``weight`` (per pair) makes each pair count as a fixed
     number of points."""
@@ -558,12 +562,12 @@ def refine_rig(data: SessionData, calibration: Calibration, *, height: float = 1
     if abs(stretched[worst]) > max_focal_change:
         return unchanged(f"it changed camera {worst}'s focal length by "
                          f"{100 * stretched[worst]:+.0f} %")
+    radial = {n: float(v) for n, v in zip(names, P[:, _RADIAL], strict=True)}
     log.info("rig from the epipolar geometry: cost %.2f -> %.2f px^2; turned %s; focal %s; "
              "radial terms %s", before, after,
              ", ".join(f"{n} {v:.2f} deg" for n, v in turned.items()),
              ", ".join(f"{n} {100 * v:+.1f} %" for n, v in stretched.items()),
-             ", ".join(f"{n} {v:+.3f}" for n, v in zip(names, P[:, _RADIAL], strict=True)))
-    radial = {n: float(v) for n, v in zip(names, P[:, _RADIAL], strict=True)}
+             ", ".join(f"{n} {v:+.3f}" for n, v in radial.items()))
     refined = Calibration(out, reference_camera=calibration.reference_camera,
                           quality=calibration.quality, world=calibration.world)
     return RigRefinement(refined, True, "", before, after, counts, turned, stretched, radial)
