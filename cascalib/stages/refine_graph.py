@@ -103,6 +103,11 @@ class GraphProblem:
         Their ``obs`` are already undistorted to the ideal square-pixel pinhole that ``cameras``
         carries for them, which every pass's calibration model expresses exactly; a tight prior
         holds it, and :func:`unpack` returns the given K and distortion exactly.
+    lens : dict of int to ndarray, shape (5,)
+        Cameras whose lens distortion (OpenCV's k1, k2, p1, p2, k3) a lens pass estimated and
+        this solve holds: their ``obs`` are undistorted to the square-pixel pinhole of their
+        start ``cameras`` (its focal and principal point still free in the graph), and
+        :func:`unpack` gives them this distortion back around their solved K.
     """
 
     cameras: list[Camera]
@@ -121,6 +126,7 @@ class GraphProblem:
     fixed: dict[int, Camera] = field(default_factory=dict)
     noise_scale: NDArray[np.float64] | None = None
     torso: NDArray[np.float64] | None = None
+    lens: dict[int, NDArray[np.float64]] = field(default_factory=dict)
 
     @property
     def n_joints(self) -> int:
@@ -480,8 +486,9 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
     Returns
     -------
     cameras : list of Camera
-        With the refined pose and intrinsics (distortion only in the ``ds2`` model); cameras
-        in ``prob.fixed`` keep their given K and distortion exactly.
+        With the refined pose and intrinsics (distortion from the ``ds2`` model, or the lens
+        ``prob.lens`` held); cameras in ``prob.fixed`` keep their given K and distortion
+        exactly.
     points : ndarray, shape (S, J, 3)
         NaN where the joint was not a variable.
     """
@@ -510,6 +517,8 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
         # skew-free formats (COLMAP) accept the camera
         Kmat = np.array(Kmat, dtype=np.float64)
         Kmat[0, 1] = 0.0
+        if c in prob.lens:
+            dist = prob.lens[c]
         cams.append(cam.with_(R=R, t=t, K=Kmat, dist=dist))
     keys = prob.point_keys()
     points = np.full(prob.points0.shape, np.nan)

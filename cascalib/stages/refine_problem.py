@@ -173,7 +173,10 @@ def make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *
                 lengths[s] = targets[int(tr)][classes]
     obs = assoc.obs[:, :, joints].copy()
     graph_cams = list(cameras)
-    for c in fixed:
+    # a lens an earlier lens pass found is held by every solve but the lens pass itself
+    lens = {c: cam.dist.copy() for c, cam in enumerate(cameras)
+            if c not in fixed and model != "ds2" and cam.has_distortion}
+    for c in [*fixed, *lens]:
         graph_cams[c], obs[:, c, :, :2] = ideal_pinhole(cameras[c], obs[:, c, :, :2])
     torso = None
     if model != "f" and cfg.upright_sigma_m > 0:
@@ -182,7 +185,7 @@ def make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *
         torso = np.where(upright[:, None], lean, np.nan)
     return GraphProblem(graph_cams, obs, names, points, stance, head, bones, lengths, reference,
                         model, height, n_persons, sigma,  # type: ignore[arg-type]
-                        {c: cameras[c] for c in fixed}, scale, torso)
+                        {c: cameras[c] for c in fixed}, scale, torso, lens)
 
 
 def ideal_pinhole(cam: Camera, uv: NDArray[np.float64]) -> tuple[Camera, NDArray[np.float64]]:
@@ -230,15 +233,23 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa
         cameras, points = unpack(values, prob)
         if prob.sigma_px <= cfg.sigma_px:
             break
-        # in the graph's pixels: cameras of known intrinsics observe their ideal pinhole's
-        proj = np.stack([(prob.cameras[c].with_(R=cam.R, t=cam.t) if c in prob.fixed else cam)
-                         .project(points) for c, cam in enumerate(cameras)], axis=1)  # (S,C,J,2)
+        # in the graph's pixels: cameras of known intrinsics, or of a held lens, observe their
+        # ideal pinhole's
+        proj = np.stack([_graph_camera(prob, c, cam).project(points)
+                         for c, cam in enumerate(cameras)], axis=1)  # (S, C, J, 2)
         err = norm_xy(proj - prob.obs[..., :2])
         if prob.noise_scale is not None:
             err = err / prob.noise_scale[..., None]
         e = err[np.isfinite(err)]
         prob.sigma_px = max(cfg.sigma_px, min(prob.sigma_px / 3, float(np.median(e)) / 1.18))
     return cameras, points, info, graph, values
+
+
+def _graph_camera(prob: GraphProblem, c: int, cam: Camera) -> Camera:
+    """Solved camera ``c`` as the graph sees it: the pinhole its ``prob.obs`` are in."""
+    if c in prob.fixed:
+        return prob.cameras[c].with_(R=cam.R, t=cam.t)
+    return cam.with_(dist=np.zeros(5)) if c in prob.lens else cam
 
 
 def with_iterations(cfg: RefineConfig, n: int) -> RefineConfig:
