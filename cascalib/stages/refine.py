@@ -14,9 +14,11 @@ Cascade of one call to :func:`refine`::
     views --associate (ground position, Hungarian, triangulation check)--> groups
     groups --select (coverage of time, floor, image)--> graph --LM--> cameras
     cameras --refine time offsets, re-associate--> (repeat n_rounds, more while they still move)
+    [lens-distortion pass, kept if it helps on held-out frames: the later solves hold its lens]
     [principal-point pass (upright torsos added), kept if it helps on held-out frames, then
      solved again with bone targets from its own cameras; if that moved the cameras far, one
-     more round and pass at its principal points; lens-distortion pass, likewise kept]
+     more round and pass at its principal points; where a lens was found, the lens pass
+     again at them, kept unless it reprojects held-out frames worse]
     cameras --triangulate every frame--> poses3d, quality report
 """
 
@@ -405,6 +407,24 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
+def _lens_pass(run: _Run, fit: _Fit, rng: np.random.Generator, min_gain: float
+               ) -> tuple[_Fit, bool]:
+    """The lens-distortion pass from ``fit`` on ``cfg.distortion_groups`` person-frames
+    (``RefineConfig.distortion``): ``fit`` with its cameras, lens included, if the pass is kept
+    (in mode "auto": held-out person-frames reproject by ``min_gain`` better), and whether it
+    was."""
+    cfg = run.cfg
+    chosen = _pass_groups(fit.assoc, fit.sel, run.data.sizes, run.joints, cfg,
+                          cfg.distortion_groups)
+    res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
+                          mode=cfg.distortion, min_gain=min_gain, fitted=fit.fitted)
+    if res is None:
+        return fit, False
+    cameras, _, info, graph, values, prob = res
+    run.solves.append(info)
+    return replace(fit, cameras=cameras, graph=graph, values=values, prob=prob), True
+
+
 def _crowded(assoc: Association, cfg: RefineConfig) -> bool:
     """Whether the rounds associated as many persons at a reference time (median over the
     times) as ``RefineConfig.principal_point_rerun_persons``: a crowd, which gets one rerun of
@@ -435,17 +455,22 @@ def _lens_floor(pp_se: NDArray[np.float64], cameras: list[Camera], fixed: Collec
     """The principal points' uncertainty (px, (C,)) once the lens pass is kept: at least the
     prior's sd (``principal_point_sigma`` of the image width).
 
-    The principal-point pass, and the split halves that measure its spread, solve without a
-    lens model, which the held-out person-frames have just asked for: the radial terms they
-    lacked went partly into the principal points (the lens pass then holds them), and both
-    halves lack them alike, so their spread misses that error. Measured on the simulator's
-    phones and security rigs (60 s whole-cascade scenes): at seed 0, principal points 11-68
-    px off, split-half standard errors 0.8-10.5 px, rotations 1.0-3.3 deg off (relative to
-    the reference camera) with a reported 1-sigma of 0.13-0.42 deg, every camera "accepted"
-    (up to 17 combined sigmas); with this floor, at seeds 0-2 (the 5 of 6 rigs Stage V
-    solved: principal points 6-91 px off, rotations up to 6.5 deg), 1-sigma 1.0-2.5 deg,
-    every camera "suspicious", the largest error 2.2 combined sigmas. Known intrinsics
-    (``fixed``) keep theirs.
+    Without ``lens_first`` the principal-point pass, and the split halves that measure its
+    spread, solve without a lens model, which the held-out person-frames then ask for: the
+    radial terms they lacked went partly into the principal points (the lens pass then holds
+    them), and both halves lack them alike, so their spread misses that error. Measured on the
+    simulator's phones and security rigs (60 s whole-cascade scenes): at seed 0, principal
+    points 11-68 px off, split-half standard errors 0.8-10.5 px, rotations 1.0-3.3 deg off
+    (relative to the reference camera) with a reported 1-sigma of 0.13-0.42 deg, every camera
+    "accepted" (up to 17 combined sigmas); with this floor, at seeds 0-2 (the 5 of 6 rigs
+    Stage V solved: principal points 6-91 px off, rotations up to 6.5 deg), 1-sigma 1.0-2.5
+    deg, every camera "suspicious", the largest error 2.2 combined sigmas.
+
+    With ``lens_first`` they hold a lens found at principal points at the image centre, and
+    their spread still falls short: on the same rigs at seed 0, split-half errors 0.4-6.8 px
+    with the principal points 1.7-23.5 px off, rotation 1-sigmas 0.14-1.04 deg with relative
+    rotations up to 0.84-1.73 deg off (phones camera 0: 0.4 px apart, 23.5 px off). Known
+    intrinsics (``fixed``) keep theirs.
     """
     out = np.maximum(pp_se, _prior_spread(cameras, fixed, cfg))  # known: 0, theirs kept
     log.info("lens model kept: the principal points are as uncertain as their prior (%s px)",
@@ -540,6 +565,10 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                [c.time_rate for c in initial.cameras], rng, prog)
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
+    lens = False
+    if cfg.lens_first and cfg.distortion != "never":
+        # its own random stream: a rig where no lens is found goes on as without it
+        fit, lens = _lens_pass(run, fit, rng.spawn(1)[0], cfg.distortion_min_gain)
     fit, pp = _principal_point_pass(run, fit)
     estimated = pp  # the last kept pass: the principal points the cameras carry
     crowd = _crowded(fit.assoc, cfg)
@@ -576,19 +605,13 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
         pp_se = _prior_spread(fit.cameras, run.fixed, cfg)
         log.info("principal points not estimated: assumed at the image centre (sd %s px)",
                  ", ".join(f"{v:.0f}" for v in pp_se))
-    distortion = False
-    if cfg.distortion != "never":
-        chosen = _pass_groups(fit.assoc, fit.sel, data.sizes, run.joints, cfg,
-                              cfg.distortion_groups)
-        res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
-                              mode=cfg.distortion, min_gain=cfg.distortion_min_gain,
-                              fitted=fit.fitted)
-        if res is not None:
-            cameras, _, info, graph, values, prob = res
-            run.solves.append(info)
-            fit = replace(fit, cameras=cameras, graph=graph, values=values, prob=prob)
-            distortion = True
-            pp_se = _lens_floor(pp_se, cameras, run.fixed, cfg)
+    if cfg.distortion != "never" and (lens or not cfg.lens_first):
+        # a lens found after the rounds is estimated again at the final principal points, kept
+        # unless it reprojects held-out persons worse; none found there: none is looked for
+        fit, kept = _lens_pass(run, fit, rng, 0.0 if lens else cfg.distortion_min_gain)
+        lens = lens or kept
+    if lens:
+        pp_se = _lens_floor(pp_se, fit.cameras, run.fixed, cfg)
     prog.step()
     cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
     if prob.obs.shape[0] > cfg.max_groups:
@@ -596,7 +619,7 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                                                 prob.model)
     sigmas = marginal_sigmas(graph, values, prob)
     sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
-    if cfg.time_final_update and (pp is not None or distortion):
+    if cfg.time_final_update and (pp is not None or lens):
         # the passes moved the geometry after the rounds' last clock update
         cameras = run.clocks(cameras)
     if run.clock_sd is not None:  # the reference's clock is exact by definition
@@ -611,5 +634,5 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
     calib = Calibration(cameras, reference_camera=initial.reference_camera,
                         quality={n: q.to_dict() for n, q in quality.items()},
                         world=initial.world)
-    return RefineResult(calib, poses, data.times, ids, quality, final, run.solves, distortion,
+    return RefineResult(calib, poses, data.times, ids, quality, final, run.solves, lens,
                         fit.prob.obs.shape[0], resid)

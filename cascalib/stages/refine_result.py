@@ -36,14 +36,16 @@ class RefineResult:
     association : Association
         The final cross-view association.
     solves : list of SolveInfo
-        One per step, in order: each round, the principal-point pass (as its update left it)
-        and the distortion pass when they are kept. Each is the last Levenberg-Marquardt run
+        One per step, in order: each round, the lens-distortion pass after the rounds, the
+        principal-point pass (as its update left it) and the lens pass at the end, when they
+        are kept. Each is the last Levenberg-Marquardt run
         of that step's graduated solve (error before / after, iterations, seconds of that run
         alone); earlier graduated stages, a pass its update replaced and the split-half check
         of the principal point are not listed, so their seconds sum to less than the time
         spent in gtsam.
     distortion : bool
-        Whether the final cameras carry an estimated principal point and distortion.
+        Whether the final cameras carry an estimated lens distortion (a lens pass was
+        kept).
     n_selected : int
         Person-frames in the last graph.
     residuals : ndarray, shape (T, P, 26), optional
