@@ -565,10 +565,14 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                [c.time_rate for c in initial.cameras], rng, prog)
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
-    lens = False
+    # a lens the start carries (stage IV's radial terms) was held by the rounds: estimated
+    # again, and kept unless held-out persons reproject worse
+    lens = any(c.has_distortion for i, c in enumerate(initial.cameras) if i not in run.fixed)
     if cfg.lens_first and cfg.distortion != "never":
         # its own random stream: a rig where no lens is found goes on as without it
-        fit, lens = _lens_pass(run, fit, rng.spawn(1)[0], cfg.distortion_min_gain)
+        fit, kept = _lens_pass(run, fit, rng.spawn(1)[0],
+                               0.0 if lens else cfg.distortion_min_gain)
+        lens = lens or kept
     fit, pp = _principal_point_pass(run, fit)
     estimated = pp  # the last kept pass: the principal points the cameras carry
     crowd = _crowded(fit.assoc, cfg)

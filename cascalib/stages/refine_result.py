@@ -44,8 +44,8 @@ class RefineResult:
         of the principal point are not listed, so their seconds sum to less than the time
         spent in gtsam.
     distortion : bool
-        Whether the final cameras carry an estimated lens distortion (a lens pass was
-        kept).
+        Whether the final cameras carry a lens distortion: found by a lens pass, or carried
+        by the start cameras and held (not those of known intrinsics).
     n_selected : int
         Person-frames in the last graph.
     residuals : ndarray, shape (T, P, 26), optional
