@@ -142,3 +142,18 @@ def test_one_camera_is_rejected():
     t = simulate("clean", seed=0, duration_s=5.0).tracks[:1]
     with pytest.raises(InputError, match="at least two cameras"):
         cascalib.calibrate(t)
+
+
+@pytest.mark.slow  # about 60 s on 2 cores
+def test_wide_lenses_are_found_before_the_principal_points():
+    """Security cameras (barrel distortion, k1 -0.06 .. -0.14), the whole cascade: stage V finds
+    the lenses after its first rounds and holds them in the principal-point pass. Measured on
+    this scene: relative rotations 0.50 deg median (stage IV left 1.20); with the lens pass only
+    at the end, 2.64 deg, worse than stage IV."""
+    scene = simulate("security", seed=0, duration_s=40.0)
+    res = cascalib.calibrate(scene.tracks, CalibrationConfig(seed=0))
+    assert res.refinement.distortion
+    for est, true in zip(res.calibration, scene.truth, strict=True):
+        assert abs(est.dist[0] - true.dist[0]) < 0.04, (est.name, est.dist, true.dist)
+    summary = compare_calibrations(res.calibration, scene.truth).summary
+    assert summary.pairwise_rotation_error_deg_median < 1.0, summary
