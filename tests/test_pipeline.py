@@ -144,7 +144,7 @@ def test_one_camera_is_rejected():
         cascalib.calibrate(t)
 
 
-@pytest.mark.slow  # about 60 s on 2 cores
+@pytest.mark.slow  # about 35 s on 2 cores
 def test_wide_lenses_are_found_before_the_principal_points():
     """Security cameras (barrel distortion, k1 -0.06 .. -0.14), the whole cascade: stage V finds
     the lenses after its first rounds and holds them in the principal-point pass. Measured on

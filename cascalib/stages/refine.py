@@ -407,13 +407,14 @@ def _principal_point_pass(run: _Run, fit: _Fit) -> tuple[_Fit, _PrincipalPoint |
                                 moved, fit, chosen)
 
 
-def _lens_pass(run: _Run, fit: _Fit, rng: np.random.Generator, min_gain: float
+def _lens_pass(run: _Run, fit: _Fit, rng: np.random.Generator, held: bool
                ) -> tuple[_Fit, bool]:
     """The lens-distortion pass from ``fit`` on ``cfg.distortion_groups`` person-frames
-    (``RefineConfig.distortion``): ``fit`` with its cameras, lens included, if the pass is kept
-    (in mode "auto": held-out person-frames reproject by ``min_gain`` better), and whether it
-    was."""
+    (``RefineConfig.distortion``): ``fit`` with its cameras, lens included, if the pass is kept,
+    and whether it was. In mode "auto" held-out person-frames must reproject
+    ``distortion_min_gain`` better, or, where the cameras already ``held`` a lens, no worse."""
     cfg = run.cfg
+    min_gain = 0.0 if held else cfg.distortion_min_gain
     chosen = _pass_groups(fit.assoc, fit.sel, run.data.sizes, run.joints, cfg,
                           cfg.distortion_groups)
     res = intrinsics_pass(fit.assoc, chosen, fit.cameras, cfg, fit.kw, rng, model="ds2",
@@ -565,13 +566,12 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                [c.time_rate for c in initial.cameras], rng, prog)
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
-    # a lens the start carries (stage IV's radial terms) was held by the rounds: estimated
-    # again, and kept unless held-out persons reproject worse
+    # a lens the start cameras carry (a calibration with distortion given back) was held by
+    # the rounds: estimated again, and kept unless held-out persons reproject worse
     lens = any(c.has_distortion for i, c in enumerate(initial.cameras) if i not in run.fixed)
     if cfg.lens_first and cfg.distortion != "never":
         # its own random stream: a rig where no lens is found goes on as without it
-        fit, kept = _lens_pass(run, fit, rng.spawn(1)[0],
-                               0.0 if lens else cfg.distortion_min_gain)
+        fit, kept = _lens_pass(run, fit, rng.spawn(1)[0], held=lens)
         lens = lens or kept
     fit, pp = _principal_point_pass(run, fit)
     estimated = pp  # the last kept pass: the principal points the cameras carry
@@ -612,7 +612,7 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
     if cfg.distortion != "never" and (lens or not cfg.lens_first):
         # a lens found after the rounds is estimated again at the final principal points, kept
         # unless it reprojects held-out persons worse; none found there: none is looked for
-        fit, kept = _lens_pass(run, fit, rng, 0.0 if lens else cfg.distortion_min_gain)
+        fit, kept = _lens_pass(run, fit, rng, held=lens)
         lens = lens or kept
     if lens:
         pp_se = _lens_floor(pp_se, fit.cameras, run.fixed, cfg)

@@ -173,7 +173,8 @@ def make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *
                 lengths[s] = targets[int(tr)][classes]
     obs = assoc.obs[:, :, joints].copy()
     graph_cams = list(cameras)
-    # a lens an earlier lens pass found is held by every solve but the lens pass itself
+    # a lens the camera carries (a lens pass found it, or the start gave it) is held by
+    # every solve but the lens pass itself
     lens = {c: cam.dist.copy() for c, cam in enumerate(cameras)
             if c not in fixed and model != "ds2" and cam.has_distortion}
     for c in [*fixed, *lens]:
