@@ -22,7 +22,7 @@ matrix (real)
 time
     4 cameras x 3000 reference frames x 5 persons (terrace rig, 25 fps, 120 s) with the time
     of every stage, peak memory and the verdict against the targets (<= 30 s wall on 2 cores,
-    <= 2 GB).
+    <= 2 GB; stage V <= 10 s), and stage V's time by kind of work.
 poses
     3D poses of every preset reconstructed with the *true* rig
     (:func:`cascalib.triangulate_poses`): joint error against the simulated persons, and how
@@ -97,6 +97,12 @@ TARGET_PEAK_MB = 2048.0
 TARGET_STAGE_V_S = 10.0  # issue 8: the bundle adjustment of 4 x 3000 x 5 on 2 cores
 
 STAGES = ("single_view", "sync", "refine", "triangulate")
+# stage V's wall time by kind of work (RefineResult.step_seconds), to see what the 10 s target
+# is up against: the factor-graph solves are only part of it
+REFINE_STEPS = (("solves", "factor-graph solves (graph building and marginals included)"),
+                ("clock_updates", "clock updates"),
+                ("reconstruction", "final triangulation of every frame and quality report"),
+                ("other", "association, frame selection, bone targets, held-out checks"))
 
 
 # -- child: one calibration -------------------------------------------------------------------
@@ -228,6 +234,7 @@ def run_one(spec: dict[str, Any]) -> dict[str, Any]:
     out["peak_mb"] = _peak_mb()
     if res is not None:
         out["timings"] = dict(res.timings)
+        out["refine_steps"] = dict(res.refinement.step_seconds)
         out.update(stage_metrics(res, truth, mapping))
     return out
 
@@ -463,6 +470,10 @@ def table_time(timeout: float) -> None:
     stage_v = t.get("refine", math.nan)
     print(f"target stage V (bundle adjustment, issue 8) <= {TARGET_STAGE_V_S:g} s on 2 cores: "
           f"{'MET' if stage_v <= TARGET_STAGE_V_S else 'MISSED'} ({_f(stage_v, '.1f')} s)")
+    steps = r.get("refine_steps") or {}
+    if steps:
+        print("stage V by kind of work: " + ", ".join(
+            f"{_f(steps.get(k), '.1f')} s {label}" for k, label in REFINE_STEPS))
     if r.get("error"):
         _print_failure("failure", r["error"])
 

@@ -25,6 +25,7 @@ Cascade of one call to :func:`refine`::
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 
@@ -71,6 +72,7 @@ from cascalib.stages.refine_problem import (
 )
 from cascalib.stages.refine_result import RefineResult, with_failed_camera
 from cascalib.stages.time_refine import refine_offsets, regroup
+from cascalib.step_seconds import account, timed
 from cascalib.tracks import Tracks
 
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
@@ -271,8 +273,9 @@ class _Run:
         if not self.cfg.refine_time:
             return cameras
         self.clock_sd = np.full(len(cameras), np.nan)
-        return refine_clocks(self.data, cameras, self.cfg, self.joints, self.height, self.rng,
-                             anchor_rates=self.anchor_rates, sd=self.clock_sd)
+        with timed("clock_updates"):
+            return refine_clocks(self.data, cameras, self.cfg, self.joints, self.height,
+                                 self.rng, anchor_rates=self.anchor_rates, sd=self.clock_sd)
 
 
 @dataclass
@@ -529,6 +532,23 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
         if progress is not None:
             progress(shown[0])
 
+    t0 = time.perf_counter()
+    with account() as spent:
+        res = _refine_or_retry(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics)
+    if spent is None:  # a retry inside refine(): the caller's tally has its seconds
+        return res
+    total = time.perf_counter() - t0
+    spent["other"] = max(total - sum(spent.values()), 0.0)
+    spent["total"] = total
+    return replace(res, step_seconds=spent)
+
+
+def _refine_or_retry(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig,
+                     height: float, rng: np.random.Generator,
+                     monotone: Callable[[float], None], fixed_intrinsics: Collection[str]
+                     ) -> RefineResult:
+    """:func:`refine`'s work: the rig, or, where a non-reference camera sees none of the
+    person-frames, the rig without it."""
     try:
         return _refine_rig(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics)
     except RefinementFailed as exc:
@@ -618,10 +638,11 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
         pp_se = _lens_floor(pp_se, fit.cameras, run.fixed, cfg)
     prog.step()
     cameras, graph, values, prob = fit.cameras, fit.graph, fit.values, fit.prob
-    if prob.obs.shape[0] > cfg.max_groups:
-        graph, values, prob = rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
-                                                prob.model)
-    sigmas = marginal_sigmas(graph, values, prob)
+    with timed("solves"):  # a graph built and factored, as a solve's
+        if prob.obs.shape[0] > cfg.max_groups:
+            graph, values, prob = rounds_size_graph(fit.assoc, fit.sel, cameras, cfg, fit.kw,
+                                                    prob.model)
+        sigmas = marginal_sigmas(graph, values, prob)
     sigmas = [s | {"principal_point": float(v)} for s, v in zip(sigmas, pp_se, strict=True)]
     if cfg.time_final_update and (pp is not None or lens):
         # the passes moved the geometry after the rounds' last clock update
@@ -631,10 +652,11 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
                             cfg.time_uncertainty_floor_frames)
         clock_sd[data.reference] = 0.0
         sigmas = [s | {"time_offset": float(v)} for s, v in zip(sigmas, clock_sd, strict=True)]
-    final, points, err = reconstruct(data, cameras, cfg, height)
-    prog.step()
-    quality = _report(final, err, cameras, sigmas, cfg)
-    poses, ids, resid = poses_by_slot(final, points, data.times, err)
+    with timed("reconstruction"):
+        final, points, err = reconstruct(data, cameras, cfg, height)
+        prog.step()
+        quality = _report(final, err, cameras, sigmas, cfg)
+        poses, ids, resid = poses_by_slot(final, points, data.times, err)
     calib = Calibration(cameras, reference_camera=initial.reference_camera,
                         quality={n: q.to_dict() for n, q in quality.items()},
                         world=initial.world)

@@ -34,6 +34,7 @@ from cascalib.stages.refine_graph import (
     unpack,
 )
 from cascalib.stages.torso_lean import expected_torso_offsets, torso_offsets
+from cascalib.step_seconds import timed
 
 __all__ = ["bone_targets", "head_joint", "ideal_pinhole", "make_problem", "pass_config",
            "refined_problem", "solve", "track_targets", "with_iterations"]
@@ -218,7 +219,18 @@ def solve(prob: GraphProblem, cfg: RefineConfig, *, max_stages: int = 4,  # noqa
     RefinementFailed
         If a camera sees none of the person-frames (nothing would constrain it), or the solve
         fails (:func:`~cascalib.stages.refine_graph.optimize`).
+
+    Notes
+    -----
+    Its wall time (graph building included) counts as "solves" in an open
+    :func:`cascalib.step_seconds.account`.
     """
+    with timed("solves"):
+        return _solve(prob, cfg, max_stages, method)
+
+
+def _solve(prob: GraphProblem, cfg: RefineConfig, max_stages: int, method: Solver):  # noqa: ANN202
+    """:func:`solve`, untimed."""
     seen = prob.projected(cfg.min_confidence).any(-1).sum(0)  # (C,) person-frames
     blind = [prob.cameras[c].name for c in np.flatnonzero(seen == 0)]
     if blind:

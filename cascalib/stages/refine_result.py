@@ -50,6 +50,13 @@ class RefineResult:
         Person-frames in the last graph.
     residuals : ndarray, shape (T, P, 26), optional
         Mean reprojection error (px) of each joint of ``poses3d`` over its cameras.
+    step_seconds : dict of str to float
+        Where the stage's wall time went: "solves" (every factor-graph solve, graph building
+        and the marginals included, the split-half check and replaced passes too),
+        "clock_updates", "reconstruction" (every frame triangulated with the final cameras,
+        and the quality report), "other" (association, frame selection, bone targets, the
+        held-out checks) and their sum "total". A camera left out and refined without counts
+        both attempts.
     """
 
     calibration: Calibration
@@ -62,6 +69,7 @@ class RefineResult:
     distortion: bool = False
     n_selected: int = 0
     residuals: NDArray[np.float64] | None = None
+    step_seconds: dict[str, float] = field(default_factory=dict)
 
 
 def with_failed_camera(result: RefineResult, initial: Calibration, name: str, reason: str
