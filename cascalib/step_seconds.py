@@ -19,6 +19,9 @@ from contextvars import ContextVar
 __all__ = ["account", "timed"]
 
 _TALLY: ContextVar[dict[str, float] | None] = ContextVar("step_seconds", default=None)
+# inside a timed block: a block within it is its kind's work already (a solve inside a clock
+# update would else count twice), so that the kinds never sum to more than the time spent
+_TIMING: ContextVar[bool] = ContextVar("step_seconds_timing", default=False)
 
 
 @contextmanager
@@ -43,13 +46,16 @@ def account() -> Iterator[dict[str, float] | None]:
 @contextmanager
 def timed(kind: str) -> Iterator[None]:
     """Add the block's wall seconds to ``kind`` of the open tally (if any; an exception in the
-    block still counts its time)."""
+    block still counts its time). A block inside another timed block counts as the outer
+    one's kind: the kinds never overlap."""
     tally = _TALLY.get()
-    if tally is None:
+    if tally is None or _TIMING.get():
         yield
         return
+    token = _TIMING.set(True)
     t0 = time.perf_counter()
     try:
         yield
     finally:
         tally[kind] = tally.get(kind, 0.0) + time.perf_counter() - t0
+        _TIMING.reset(token)

@@ -38,6 +38,22 @@ def test_a_nested_tally_adds_to_its_owners_and_a_failed_block_still_counts() -> 
     assert outer is not None and outer["solves"] >= 0.02
 
 
+def test_a_block_inside_another_counts_as_the_outer_ones_kind() -> None:
+    t0 = time.perf_counter()
+    with account() as tally:
+        with timed("clocks"):
+            time.sleep(0.01)
+            with timed("solves"):
+                time.sleep(0.05)
+        with timed("solves"):
+            time.sleep(0.01)
+    wall = time.perf_counter() - t0
+    assert tally is not None and set(tally) == {"clocks", "solves"}
+    # counted twice, the inner block would put solves at 0.06 s or more
+    assert tally["clocks"] >= 0.06 and 0.01 <= tally["solves"] < 0.05
+    assert sum(tally.values()) <= wall  # the kinds partition the time, never overlap
+
+
 def test_each_thread_keeps_its_own_tally() -> None:
     seen: dict[str, dict[str, float] | None] = {}
 

@@ -538,7 +538,7 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     if spent is None:  # a retry inside refine(): the caller's tally has its seconds
         return res
     total = time.perf_counter() - t0
-    spent["other"] = max(total - sum(spent.values()), 0.0)
+    spent["other"] = max(total - sum(spent.values()), 0.0)  # timed blocks never overlap
     spent["total"] = total
     return replace(res, step_seconds=spent)
 
