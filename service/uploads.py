@@ -46,6 +46,8 @@ FILES_FIELD = "files"
 OPTIONS_FIELD = "options"
 _CAMERA = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 _EXT = re.compile(r"^[A-Za-z0-9]{1,8}$")
+#: Deepest nesting of objects and lists accepted in ``options`` (the config has three levels).
+MAX_OPTIONS_DEPTH = 32
 
 
 @dataclass
@@ -94,12 +96,29 @@ def camera_name(filename: str | None) -> tuple[str, str]:
     return stem, ext.lower()
 
 
+def _depth(value: Any) -> int:
+    """Nesting depth of parsed JSON, counted without recursion."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, level)
+            children = item.values() if isinstance(item, dict) else item
+            stack.extend((child, level + 1) for child in children)
+    return deepest
+
+
 def parse_options(raw: str | None) -> tuple[JobOptions, dict[str, Any]]:
     """The ``options`` part as :class:`JobOptions` (422 naming the option on error)."""
+    too_deep = _bad(f"options nest deeper than {MAX_OPTIONS_DEPTH} levels", field=OPTIONS_FIELD)
     try:
         data = json.loads(raw) if raw else {}
     except json.JSONDecodeError as exc:
         raise _bad(f"options is not valid JSON: {exc}", field=OPTIONS_FIELD) from None
+    except RecursionError:  # the decoder recurses once per level of nesting
+        raise too_deep from None
+    if _depth(data) > MAX_OPTIONS_DEPTH:
+        raise too_deep
     if not isinstance(data, dict):
         raise _bad("options must be a JSON object", field=OPTIONS_FIELD)
     try:

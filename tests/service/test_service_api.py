@@ -106,6 +106,12 @@ BAD_UPLOADS = {
     "negative fps": (None, {**OPTIONS, "fps": -3}, 422, "options.fps"),
     "options not json": (None, "{image_size: 1920x1080", 422, "options"),
     "options not object": (None, "[1, 2]", 422, "options"),
+    "options nested 100k deep": (None, '{"config":' + '{"a":' * 100_000 + "1" + "}" * 100_001,
+                                 422, "options"),
+    "options nested 300k lists": (None, '{"config":{"a":' + "[" * 300_000 + "]" * 300_000
+                                  + "}}", 422, "options"),
+    "options nested 40 deep": (None, '{"config":' + '{"a":' * 40 + "1" + "}" * 41, 422,
+                               "options"),
     "fps for unknown camera": (None, {**OPTIONS, "fps": {"camX": 30}}, 422, "options.fps.camX"),
     "unknown reference camera": (None, {**OPTIONS, "reference_camera": "camZ"}, 422,
                                  "options.reference_camera"),
