@@ -79,13 +79,20 @@ def _parse_fps(v: Any) -> float:
 
 def apply_overrides(tracks: list[Tracks], *, image_size: PerCamera = None, fps: PerCamera = None
                     ) -> list[Tracks]:
-    """Fill in image sizes and frame rates: per-camera value > value in the file > global value.
+    """Fill in image sizes and frame rates.
+
+    Frame rates: per-camera value > value in the file > global value. Image sizes: the file's,
+    else the given one; a given size that differs from the file's is refused (the rule of
+    :func:`~cascalib.formats.keypoints._common.resolve_image_size`, the REST service's too).
 
     Raises
     ------
     InputError
-        If a per-camera value names a camera that is not in the session.
+        If a per-camera value names a camera that is not in the session, or a given image
+        size differs from the one a file records.
     """
+    from cascalib.formats.keypoints._common import resolve_image_size
+
     size_all, size_per = parse_camera_values(image_size, parse_image_size, field="image_size")
     fps_all, fps_per = parse_camera_values(fps, _parse_fps, field="fps")
     names = [t.camera for t in tracks]
@@ -96,7 +103,8 @@ def apply_overrides(tracks: list[Tracks], *, image_size: PerCamera = None, fps: 
                              field="image_size" if cam in size_per else "fps")
     out = []
     for t in tracks:
-        size = size_per.get(t.camera, t.image_size if t.image_size is not None else size_all)
+        given = size_per.get(t.camera, size_all)
+        size = resolve_image_size(t.image_size, given, camera=t.camera, file=t.source)
         rate = fps_per.get(t.camera, t.fps if t.fps is not None else fps_all)
         out.append(t.with_(image_size=size, fps=rate) if (size, rate) != (t.image_size, t.fps)
                    else t)

@@ -165,14 +165,21 @@ def read_camera(path: Path, camera: str, options: JobOptions) -> Tracks:
     Raises
     ------
     InputError
-        The file cannot be read as keypoints or contradicts the options.
+        The file cannot be read as keypoints or contradicts the options (a given image size
+        other than the one the file records is refused, naming ``options.image_size``).
     """
     from cascalib.formats import read_tracks
 
     size = per_camera(options.image_size, camera)
     fps = per_camera(options.fps, camera)
-    tracks = read_tracks(path, camera=camera, skeleton=options.skeleton, image_size=size,
-                         fps=None if fps is None else float(fps))
+    try:
+        tracks = read_tracks(path, camera=camera, skeleton=options.skeleton, image_size=size,
+                             fps=None if fps is None else float(fps))
+    except InputError as exc:
+        if exc.field != "image_size" or size is None:
+            raise
+        raise InputError(exc.message, file=exc.file, camera=exc.camera, frame=exc.frame,
+                         field="options.image_size") from None
     if tracks.n_detections == 0:
         raise InputError("the file holds no detections", file=str(path), camera=camera)
     return tracks

@@ -29,12 +29,21 @@ def test_global_and_per_camera_values_with_precedence(tmp_path):
     assert tracks[0].fps == 30.0 and tracks[1].fps == 25.0
 
 
-def test_value_in_file_wins_over_global_but_not_over_per_camera(tmp_path):
+def test_frame_rate_in_file_wins_over_global_but_not_over_per_camera(tmp_path):
     a = _write(tmp_path, "cam0", fmt="native-json", image_size=(800, 600), fps=50.0)
-    t = load_session([a], image_size="1920x1080", fps=30)[0]
+    t = load_session([a], image_size="800x600", fps=30)[0]
     assert t.image_size == (800, 600) and t.fps == 50.0
-    t = load_session([a], image_size={"cam0": "1024x768"}, fps={"cam0": 25})[0]
-    assert t.image_size == (1024, 768) and t.fps == 25.0
+    t = load_session([a], image_size={"cam0": "800x600"}, fps={"cam0": 25})[0]
+    assert t.image_size == (800, 600) and t.fps == 25.0
+
+
+@pytest.mark.parametrize("given", ["1920x1080", {"cam0": "1024x768"}, {"cam0": "1x1"}])
+def test_given_image_size_other_than_the_files_is_refused(tmp_path, given):
+    a = _write(tmp_path, "cam0", fmt="native-json", image_size=(800, 600))
+    with pytest.raises(InputError, match="differs from the 800x600 the file records") as info:
+        load_session([a], image_size=given)
+    assert info.value.camera == "cam0" and info.value.field == "image_size"
+    assert info.value.file == str(a)
 
 
 @pytest.mark.parametrize("kw, message", [

@@ -42,10 +42,13 @@ def test_tracks_info_table(shared_data, capsys):
 
 
 def test_tracks_info_json_and_bad_input(tmp_path, capsys):
-    # the mmpose file stores its image size (640x480): that wins over the default
-    assert main(["tracks-info", "--json", "--image-size", "1280x720", "--fps", "30",
-                 "--fps", "port_2=25", "--image-size", "port_2=1920x1080",
-                 str(DATA / "mmpose_video.json"), str(DATA / "caliscope.csv")]) == 0
+    # the mmpose file stores its image size (640x480): a given size that differs is refused
+    # (docs/decisions/image-size-precedence.md), so the other cameras get theirs by name
+    files = [str(DATA / "mmpose_video.json"), str(DATA / "caliscope.csv")]
+    with pytest.raises(InputError, match="1280x720 differs from the 640x480 the file records"):
+        main(["tracks-info", "--image-size", "1280x720", *files])
+    assert main(["tracks-info", "--json", "--image-size", "port_0=1280x720", "--fps", "30",
+                 "--fps", "port_2=25", "--image-size", "port_2=1920x1080", *files]) == 0
     out = json.loads(capsys.readouterr().out)
     port0, port2 = out["cameras"][1:]
     assert (port0["fps"], port0["image_size"]) == (30.0, [1280, 720])

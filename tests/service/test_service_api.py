@@ -80,6 +80,23 @@ def _bomb() -> bytes:
     return zip_bytes({"frame_000000000000_keypoints.json": b"{" + b" " * (40 * 2**20) + b"}"})
 
 
+def _sized_file(name: str, size: tuple[int, int] = (640, 480)) -> tuple[str, bytes]:
+    """A native keypoint file that records its image size."""
+    import tempfile
+
+    import numpy as np
+
+    from cascalib import Tracks
+    from cascalib.formats import write_tracks
+
+    kp = np.random.default_rng(0).uniform(10, 400, (6, 1, 17, 3))
+    kp[..., 2] = 0.9
+    with tempfile.TemporaryDirectory() as tmp:
+        path = write_tracks(Tracks(name, kp, "coco17", image_size=size), Path(tmp) / f"{name}.json",
+                            format="native-json")
+        return f"{name}.json", Path(path).read_bytes()
+
+
 def _truncated_zip() -> bytes:
     return camera_zip(0)[: len(camera_zip(0)) // 2]
 
@@ -126,6 +143,12 @@ BAD_UPLOADS = {
     "too many files": ([(f"cam{i}.zip", b"x") for i in range(MAX_FILES + 1)], OPTIONS, 413,
                        "files"),
     "no files": ([], OPTIONS, 422, "files"),
+    "image size 1x1 against the file's": ([_sized_file("cam0"), _sized_file("cam1")],
+                                          {"fps": 30, "image_size": "1x1"}, 422,
+                                          "options.image_size"),
+    "image size 999999x999999 for one camera": (
+        [_sized_file("cam0"), _sized_file("cam1")],
+        {"fps": 30, "image_size": {"cam1": "999999x999999"}}, 422, "options.image_size"),
 }
 
 

@@ -59,20 +59,33 @@ def for_camera(value: Any, camera: str) -> Any:
     return value
 
 
-def resolve_image_size(from_file: Any, given: SizeArg, *, camera: str, file: Path
+def resolve_image_size(from_file: Any, given: SizeArg, *, camera: str, file: Path | str | None
                        ) -> tuple[int, int] | None:
-    """The image size stored in the file wins; the caller's is used where the file has none."""
+    """The image size of a camera: the file's, else the caller's; a disagreement is refused.
+
+    A size the caller gives (for every camera or for this one) that differs from the size the
+    file records is an error, never silently dropped nor silently applied: keypoints are in the
+    pixels of the image the file describes (see docs/decisions/image-size-precedence.md).
+
+    Raises
+    ------
+    InputError
+        A malformed size, or a given size other than the file's (naming file and camera).
+    """
     caller = for_camera(given, camera)
     caller_size = None if caller is None else parse_image_size(caller, camera=camera)
     if from_file is None:
         return caller_size
+    where = {"file": None if file is None else str(file), "camera": camera,
+             "field": "image_size"}
     try:
         size = parse_image_size(from_file, camera=camera)
     except InputError as exc:
-        raise InputError(exc.message, file=str(file), camera=camera, field="image_size") from None
+        raise InputError(exc.message, **where) from None
     if caller_size is not None and caller_size != size:
-        logger.warning("%s: camera %s: the file says image size %dx%d, ignoring the given "
-                       "%dx%d", file, camera, *size, *caller_size)
+        raise InputError(f"the given image size {caller_size[0]}x{caller_size[1]} differs from "
+                         f"the {size[0]}x{size[1]} the file records: give the file's size or "
+                         "none for this camera", **where)
     return size
 
 
