@@ -30,17 +30,22 @@ _MEMBER_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.\-]{0,200}$")
 
 @dataclass(frozen=True)
 class ZipLimits:
-    """Bounds on an uploaded zip (zip bombs, member floods)."""
+    """Bounds on an upload: its zip (zip bombs, member floods) and the keypoints read from it."""
 
     max_members: int
     max_total_bytes: int
     max_ratio: float
+    #: What the readers may build of one camera (see ``cascalib.formats.keypoints.ReadLimits``).
+    max_frames: int | None = None
+    max_persons: int | None = None
+    max_keypoint_bytes: int | None = None
 
 
 def zip_limits(settings: Any) -> ZipLimits:
     """The zip limits of the service settings."""
     return ZipLimits(settings.max_zip_members, settings.max_unzipped_bytes,
-                     settings.max_zip_ratio)
+                     settings.max_zip_ratio, settings.max_frames, settings.max_persons,
+                     settings.max_keypoint_bytes)
 
 
 def is_zip(path: Path) -> bool:
@@ -159,22 +164,29 @@ def per_camera(value: Any, camera: str) -> Any:
     return value
 
 
-def read_camera(path: Path, camera: str, options: JobOptions) -> Tracks:
+def read_camera(path: Path, camera: str, options: JobOptions,
+                limits: ZipLimits | None = None) -> Tracks:
     """Parse one camera's keypoints (any supported format) with the job's options.
 
     Raises
     ------
+    LimitExceeded
+        The keypoints exceed ``limits`` (frames, persons, bytes).
     InputError
         The file cannot be read as keypoints or contradicts the options (a given image size
         other than the one the file records is refused, naming ``options.image_size``).
     """
     from cascalib.formats import read_tracks
+    from cascalib.formats.keypoints import ReadLimits, read_limits
 
     size = per_camera(options.image_size, camera)
     fps = per_camera(options.fps, camera)
+    bounds = ReadLimits() if limits is None else ReadLimits(
+        limits.max_frames, limits.max_persons, limits.max_keypoint_bytes)
     try:
-        tracks = read_tracks(path, camera=camera, skeleton=options.skeleton, image_size=size,
-                             fps=None if fps is None else float(fps))
+        with read_limits(bounds):
+            tracks = read_tracks(path, camera=camera, skeleton=options.skeleton,
+                                 image_size=size, fps=None if fps is None else float(fps))
     except InputError as exc:
         if exc.field != "image_size" or size is None:
             raise

@@ -74,6 +74,17 @@ class Settings(BaseSettings):
         default=2 * 2**30, ge=1024, description="Total size of one zip's extracted members."
     )
     max_zip_members: int = Field(default=200_000, ge=1, description="Members of one zip.")
+    max_frames: int = Field(
+        default=1_000_000, ge=1,
+        description="Frames of one camera: the span of its frame ids, 0 to the last (413).",
+    )
+    max_persons: int = Field(
+        default=100, ge=1, description="People detected in one frame of one camera (413)."
+    )
+    max_keypoint_bytes: int = Field(
+        default=2**30, ge=2**20,
+        description="Memory of one camera's keypoints, frames x persons x joints x 3 x 8 (413).",
+    )
     max_zip_ratio: float = Field(
         default=200.0, gt=1, description="Largest compression ratio of a zip member (zip bombs)."
     )

@@ -43,7 +43,12 @@ class ProblemError(Exception):
 
 
 def from_cascalib(exc: CascalibError, status: int = 422) -> ProblemError:
-    """A cascalib error (located by camera/file/frame/field) as a 4xx problem."""
+    """A cascalib error (located by camera/file/frame/field) as a 4xx problem (413 for a
+    stated size limit)."""
+    from cascalib.formats.keypoints import LimitExceeded
+
+    if isinstance(exc, LimitExceeded):
+        status = 413
     param = InvalidParam(message=exc.message, camera=exc.camera, file=exc.file, frame=exc.frame,
                          field=exc.field)
     return ProblemError(status, str(exc), title=type(exc).__name__, errors=[param])

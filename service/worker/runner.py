@@ -70,7 +70,7 @@ def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
             path = safe_extract(path, work / f"cam_{len(tracks)}", limits,
                                 file=f.client_name or f.role)
             names.paths[str(path)] = f.client_name or f.role
-        tracks.append(read_camera(path, f.role, options))
+        tracks.append(read_camera(path, f.role, options, limits))
     check_session(tracks)
     return tracks
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from service_helpers import (
     MAX_FILES,
@@ -325,3 +326,38 @@ def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> 
     assert poses.status_code == 200 and json.loads(poses.content)
     assert client.get(f"/v1/jobs/{job['id']}/poses", params={"format": "npz"}).content[:2] == b"PK"
     assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204
+
+
+def mmpose_bytes(frame_ids: list[int], persons: int = 1, seed: int = 0) -> bytes:
+    """An mmpose file (COCO-17, two values per joint) with ``persons`` people per frame id."""
+    rng = np.random.default_rng(seed)
+
+    def person() -> dict[str, object]:
+        xy = rng.uniform(100, 500, (17, 2)).round(1)
+        return {"keypoints": xy.tolist(), "keypoint_scores": [0.9] * 17}
+
+    return json.dumps([{"frame_id": f, "instances": [person() for _ in range(persons)]}
+                       for f in frame_ids]).encode()
+
+
+MEMORY_CASES = {
+    # kind: (frame ids, persons per frame, status, field)
+    "frame id past the frame limit": ([*range(40), 1_000_000], 1, 413, "frames"),
+    "frame ids spread far apart": ([*range(40), 300_000], 1, 422, "frames"),
+    "too many people in a frame": ([0, 1, 2], 101, 413, "persons"),
+}
+
+
+@pytest.mark.parametrize("kind", list(MEMORY_CASES))
+def test_keypoints_beyond_their_data_refused_early(client: httpx.Client, kind: str) -> None:
+    """A small file must not make the API build a dense array for frames or people it does
+    not hold: the stated limits answer 413, ids far apart 422, in well under a second."""
+    frame_ids, persons, status, field = MEMORY_CASES[kind]
+    files = [("cam0.json", mmpose_bytes(frame_ids, persons)),
+             ("cam1.json", mmpose_bytes(list(range(40)), 1, seed=1))]
+    t0 = time.monotonic()
+    r = submit(client, files, {"image_size": "640x480", "fps": 30})
+    assert r.status_code == status, r.text
+    assert time.monotonic() - t0 < 5.0
+    err = r.json()["errors"][0]
+    assert (err["camera"], err["file"], err["field"]) == ("cam0", "cam0.json", field), err

@@ -98,3 +98,20 @@ def test_bad_camera_names(name: str) -> None:
     with pytest.raises(ProblemError) as err:
         camera_name(name)
     assert err.value.status == 422 and err.value.errors[0].field == "files"
+
+
+def test_npz_unpacking_past_the_limit_refused_before_unpacking(tmp_path: Path) -> None:
+    """A compressed NPZ of zeros is a zip bomb for np.load: its declared size is checked
+    first."""
+    from api_schemas import JobOptions
+    from cascalib.formats.keypoints import LimitExceeded
+    from service.inputs import read_camera
+
+    path = tmp_path / "cam0.npz"
+    np.savez_compressed(path, header=np.array('{"schema": "cascalib/tracks@1"}'),
+                        keypoints=np.zeros((40_000, 4, 17, 3)))
+    assert path.stat().st_size < 2**20
+    limits = ZipLimits(100, 2**30, 200, max_keypoint_bytes=16 * 2**20)
+    with pytest.raises(LimitExceeded, match="unpack to") as info:
+        read_camera(path, "cam0", JobOptions(), limits)
+    assert (info.value.camera, info.value.field) == ("cam0", "keypoints")

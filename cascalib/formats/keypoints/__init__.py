@@ -5,6 +5,7 @@ format module also has its own pure ``read_<format>`` / ``write_<format>`` funct
 here.
 """
 
+from cascalib.formats.keypoints._common import LimitExceeded, ReadLimits, read_limits
 from cascalib.formats.keypoints.cascalib_ref import read_cascalib_ref, write_cascalib_ref
 from cascalib.formats.keypoints.coco import read_coco, write_coco
 from cascalib.formats.keypoints.dispatch import (
@@ -27,7 +28,7 @@ from cascalib.formats.keypoints.openpose import read_openpose, write_openpose
 
 __all__ = [
     "FORMATS", "detect_format", "read_session", "read_tracks", "read_tracks_many",
-    "write_tracks",
+    "write_tracks", "LimitExceeded", "ReadLimits", "read_limits",
     "read_cascalib_ref", "write_cascalib_ref", "read_coco", "write_coco",
     "read_mediapipe_csv", "write_mediapipe_csv", "read_mmpose", "write_mmpose",
     "read_native_json", "read_native_npz", "write_native_json", "write_native_npz",

@@ -12,7 +12,10 @@ import itertools
 import json
 import logging
 import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +32,89 @@ logger = logging.getLogger(__name__)
 SizeArg = str | tuple[int, int] | list[int] | Mapping[str, Any] | None
 #: Frame rate as a caller may give it: one value or per camera {name: fps}.
 FpsArg = float | Mapping[str, float] | None
+
+#: The dense array may hold this many (frame, person) slots per detection read, beyond
+#: ``_SLOTS_FREE``: frame ids spread far apart would otherwise turn a small file into gigabytes.
+_SLOTS_PER_DETECTION = 32
+_SLOTS_FREE = 100_000
+
+
+class LimitExceeded(InputError):
+    """The keypoints exceed a limit the caller set with :func:`read_limits`."""
+
+
+@dataclass(frozen=True)
+class ReadLimits:
+    """Bounds on what a reader may build for one camera (None: no bound).
+
+    Attributes
+    ----------
+    max_frames : int, optional
+        Rows of the dense array: the span of frame ids, 0 to the last.
+    max_persons : int, optional
+        Person slots: the most detections in one frame.
+    max_bytes : int, optional
+        Size of the dense ``(frames, persons, joints, 3)`` array.
+    """
+
+    max_frames: int | None = None
+    max_persons: int | None = None
+    max_bytes: int | None = None
+
+
+_LIMITS: ContextVar[ReadLimits] = ContextVar("cascalib_read_limits", default=ReadLimits())
+
+
+@contextmanager
+def read_limits(limits: ReadLimits) -> Iterator[None]:
+    """Apply ``limits`` to the readers called inside the ``with`` block (this thread only)."""
+    token = _LIMITS.set(limits)
+    try:
+        yield
+    finally:
+        _LIMITS.reset(token)
+
+
+def check_unpacked(n_bytes: int, *, file: Path | str, camera: str | None) -> None:
+    """Refuse an archive (NPZ) whose arrays unpack to more than twice the keypoints' limit
+    (the keypoints dominate; ids and timestamps are smaller), before it is unpacked.
+
+    Raises
+    ------
+    LimitExceeded
+        Over the ``max_bytes`` of :func:`read_limits`.
+    """
+    limit = _LIMITS.get().max_bytes
+    if limit is not None and n_bytes > 2 * limit:
+        raise LimitExceeded(f"the arrays unpack to {n_bytes} bytes, at most {2 * limit} "
+                            "allowed", file=str(file), camera=camera, field="keypoints")
+
+
+def check_dense(n_frames: int, n_persons: int, n_joints: int, *, n_detections: int | None,
+                file: Path | str, camera: str) -> None:
+    """Refuse a dense array the data does not justify, before it is allocated.
+
+    Raises
+    ------
+    LimitExceeded
+        Over a limit of :func:`read_limits`.
+    InputError
+        More than ``_SLOTS_PER_DETECTION`` empty slots per detection (frame ids far apart).
+    """
+    lim = _LIMITS.get()
+    where = {"file": str(file), "camera": camera}
+    n_bytes = n_frames * n_persons * n_joints * 3 * 8
+    for value, limit, what, field in (
+            (n_frames, lim.max_frames, f"frame ids span {n_frames} frames", "frames"),
+            (n_persons, lim.max_persons, f"{n_persons} people in one frame", "persons"),
+            (n_bytes, lim.max_bytes, f"the keypoints need {n_bytes} bytes", "keypoints")):
+        if limit is not None and value > limit:
+            raise LimitExceeded(f"{what}, at most {limit} allowed", field=field, **where)
+    slots = n_frames * n_persons
+    if n_detections is not None and slots > _SLOTS_PER_DETECTION * n_detections + _SLOTS_FREE:
+        raise InputError(f"{n_detections} detections spread over frame ids 0-{n_frames - 1} "
+                         f"and {n_persons} person slots ({slots} slots, mostly empty): frame "
+                         "ids must be the video's frame numbers", field="frames", **where)
 
 
 def load_json(path: Path, *, camera: str | None = None) -> Any:
@@ -255,7 +341,7 @@ def pick_skeleton(given: str | Skeleton | None, kp: NDArray[np.float64], *, file
 
 
 def pack(frames: NDArray[np.int64], kp: NDArray[np.float64], ids: NDArray[np.int64] | None,
-         n_frames: int | None = None
+         n_frames: int | None = None, *, file: Path | None = None, camera: str = ""
          ) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
     """Pack flat records into dense arrays; person slots keep the file's order within a frame.
 
@@ -268,6 +354,8 @@ def pack(frames: NDArray[np.int64], kp: NDArray[np.float64], ids: NDArray[np.int
         Track id of each record (-1 unknown).
     n_frames : int, optional
         Number of rows (at least ``frames.max() + 1``).
+    file, camera : optional
+        For the error when the array would be too large (:func:`check_dense`).
 
     Returns
     -------
@@ -284,6 +372,8 @@ def pack(frames: NDArray[np.int64], kp: NDArray[np.float64], ids: NDArray[np.int
     slot = np.empty_like(frames)
     slot[order] = np.arange(frames.size) - starts
     n_persons = int(slot.max()) + 1 if frames.size else 1
+    check_dense(n_rows, n_persons, kp.shape[1], n_detections=frames.size,
+                file=file or Path("?"), camera=camera)
     out = np.full((n_rows, n_persons, kp.shape[1], 3), np.nan)
     out[frames, slot] = kp
     if ids is None or not (ids >= 0).any():

@@ -74,7 +74,7 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
     tid = c.track_numbers([r.get("track_id") for r in info], frames, file=path, camera=camera,
                           field="track_id")
     sk = c.pick_skeleton(skeleton, kp, file=path, camera=camera)
-    dense, track_ids = c.pack(frames, kp, tid)
+    dense, track_ids = c.pack(frames, kp, tid, file=path, camera=camera)
     return Tracks(camera=camera, keypoints=dense, skeleton=sk,
                   image_size=c.resolve_image_size(None, image_size, camera=camera, file=path),
                   fps=c.resolve_fps(None, fps, camera=camera, file=path),

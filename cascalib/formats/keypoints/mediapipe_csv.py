@@ -224,6 +224,8 @@ def _port_tracks(d: dict[str, NDArray[np.float64]], rows: NDArray[np.int64],
                  frames: NDArray[np.int64], point: NDArray[np.int64], *, path: Path,
                  camera: str, image_size: c.SizeArg, fps: c.FpsArg) -> Tracks:
     n_frames = int(frames.max()) + 1
+    c.check_dense(n_frames, 1, _N_BODY, n_detections=len(np.unique(frames)), file=path,
+                  camera=camera)
     ts = _frame_times(d["frame_time"][rows], frames, n_frames, path=path, camera=camera)
     body = point < _N_BODY
     c.require_records(int(body.sum()), file=path, camera=camera, field="point_id")

@@ -131,7 +131,7 @@ def from_json(obj: Any, path: Path, *, camera: str, skeleton: str | Skeleton | N
     sk = c.pick_skeleton(skeleton or _meta_skeleton(meta, int(xy.shape[1])), kp, file=path,
                          camera=camera)
     n_frames = max((f.get("frame_id", k) for k, f in enumerate(frames_in)), default=0) + 1
-    dense, track_ids = c.pack(frames, kp, tid, n_frames=n_frames)
+    dense, track_ids = c.pack(frames, kp, tid, n_frames=n_frames, file=path, camera=camera)
     return Tracks(camera=camera, keypoints=dense, skeleton=sk,
                   image_size=c.resolve_image_size(_meta_size(meta), image_size, camera=camera,
                                                   file=path),

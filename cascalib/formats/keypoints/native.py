@@ -107,6 +107,7 @@ def from_json(obj: Any, path: Path, *, camera: str | None = None, skeleton: Any 
     except (KeyError, TypeError, ValueError):
         raise InputError("'shape' must be [n_frames, n_persons, n_joints]", file=str(path),
                          camera=cam, field="shape") from None
+    c.check_dense(*shape, n_detections=None, file=path, camera=cam)
     src = arrays if arrays is not None else obj
     kp = _array(src.get("keypoints"), shape + (3,), np.float64, path=path, camera=cam,
                 name="keypoints") if arrays is not None else _keypoints(obj, shape, path, cam)
@@ -184,7 +185,11 @@ def read_native_npz(path: str | Path, *, camera: str | None = None, skeleton: An
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
+            c.check_unpacked(sum(i.file_size for i in z.zip.infolist()), file=path,
+                             camera=camera)
             arrays = {k: z[k] for k in z.files}
+    except InputError:
+        raise
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(f"not a readable NPZ file: {exc}", file=str(path),
                          camera=camera) from None

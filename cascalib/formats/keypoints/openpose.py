@@ -166,7 +166,7 @@ def _build(rows: list[Any], frames: np.ndarray, ids: list[Any], where: list[Path
                           file=path, camera=camera, field="person_id")
     sk = c.pick_skeleton(skeleton, kp[keep], file=path, camera=camera)
     dense, track_ids = c.pack(frames[keep], kp[keep], None if tid is None else tid[keep],
-                              n_frames=n_frames)
+                              n_frames=n_frames, file=path, camera=camera)
     return Tracks(camera=camera, keypoints=dense, skeleton=sk,
                   image_size=c.resolve_image_size(None, image_size, camera=camera, file=path),
                   fps=c.resolve_fps(None, fps, camera=camera, file=path),
