@@ -29,7 +29,8 @@ def _undistort_iter(pts: NDArray[np.float64], K: NDArray[np.float64], dist: NDAr
     # OpenCV 4 has a separate undistortPointsIter; OpenCV 5 takes the criteria in undistortPoints.
     if hasattr(cv2, "undistortPointsIter"):
         return cv2.undistortPointsIter(pts, K, dist, np.eye(3), np.eye(3), crit)
-    return cv2.undistortPoints(pts, K, dist, None, np.eye(3), np.eye(3), crit)
+    return np.asarray(cv2.undistortPoints(pts, K, dist, None, np.eye(3), np.eye(3), crit),
+                      dtype=np.float64)
 
 
 def distort_normalized(xy: NDArray[np.float64], dist: NDArray[np.float64]) -> NDArray[np.float64]:

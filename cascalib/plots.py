@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -20,6 +21,9 @@ from numpy.typing import NDArray  # noqa: E402
 from cascalib.calibration import Calibration  # noqa: E402
 from cascalib.camera import Camera  # noqa: E402
 from cascalib.skeletons import CANONICAL_BONES, CANONICAL_INDEX  # noqa: E402
+
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
 
 __all__ = ["plot_rig_3d", "plot_birdseye", "plot_reprojection_histograms", "save_figure"]
 
@@ -87,7 +91,7 @@ def plot_rig_3d(calib: Calibration, joints: NDArray[np.float64] | None = None,
     return fig
 
 
-def _equal_3d(ax: plt.Axes) -> None:
+def _equal_3d(ax: Axes3D) -> None:
     lims = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
     centre, radius = lims.mean(1), (lims[:, 1] - lims[:, 0]).max() / 2
     for setter, c in zip((ax.set_xlim3d, ax.set_ylim3d, ax.set_zlim3d), centre, strict=True):

@@ -183,14 +183,14 @@ def load_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
     """
     from cascalib.formats import read_session
 
-    paths = [Path(p) for p in paths]
-    if not paths:
+    given = [Path(p) for p in paths]
+    if not given:
         raise InputError("no input given: name one keypoint file or folder per camera")
     files: list[Path] = []
     names: list[str | None] = []
     manifest_sizes: dict[str, Any] = {}
     manifest_fps: dict[str, Any] = {}
-    for p in paths:
+    for p in given:
         if not p.exists():
             raise InputError("no such file or folder", file=str(p))
         if not is_manifest(p):

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     try:
-        settings = Settings(**({"insecure_no_auth": True} if args.insecure_no_auth else {}))
+        settings = Settings(insecure_no_auth=True) if args.insecure_no_auth else Settings()
         prepare_store(settings).dispose()  # migrate and check before binding the port
     except (ConfigurationError, ValidationError) as exc:
         print(f"cascalib serve: error: {exc}", file=sys.stderr)

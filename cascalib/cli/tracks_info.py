@@ -40,8 +40,9 @@ def summary(tracks: Tracks, fmt: str) -> dict[str, Any]:
             "track_ids": tracks.track_ids is not None, "source": tracks.source}
 
 
-def per_camera(values: list[str] | None) -> dict[str, str] | None:
-    """``["1920x1080", "cam2=1280x720"]`` -> ``{"*": "1920x1080", "cam2": "1280x720"}``."""
+def per_camera(values: list[str] | None) -> dict[str, Any] | None:
+    """``["1920x1080", "cam2=1280x720"]`` -> ``{"*": "1920x1080", "cam2": "1280x720"}`` (the
+    readers parse and check the strings)."""
     if not values:
         return None
     out = {}

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         poses = triangulate_poses(tracks, calibration, height=args.height)
         progress("triangulate", 1.0)
     written = poses.save(args.output, formats=formats)
-    seen = np.isfinite(poses.joints[..., 0]).any(-1)
+    seen = np.asarray(np.isfinite(poses.joints[..., 0]).any(axis=-1))
     summary = {
         "ok": True, "calibration": str(args.calibration),
         "frames": int(poses.joints.shape[0]), "frames_with_persons": int(seen.any(1).sum()),
