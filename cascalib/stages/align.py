@@ -326,7 +326,7 @@ def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: ByCamera[Gr
     kw = dict(sigma=cfg.refine_sigma, estimate_rate=cfg.estimate_rate, scale_range=sr,
               margin=max(3.0, 3 * cfg.smooth_seconds * fps_ref), noise_a=noise[i],
               noise_b=noise[j], rate_prior_sd=cfg.rate_prior_sd, corr_frames=0.5 * fps_ref)
-    fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)
+    fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)  # type: ignore[arg-type]
     for _ in range(3):
         # the coarse peak can sit a few frames off (broad peaks in crowds): when the fit runs
         # into its +-6 frame bound, re-associate at its offset and fit again
@@ -337,7 +337,7 @@ def _refine_pair(i: int, j: int, offset: int, best: IcpResult, fine: ByCamera[Gr
         if moved is None:
             break
         best = moved
-        fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)
+        fit = refine_sync(fine[i], fine[j], lanes[i], lanes[j], best, offset, rng=rng, **kw)  # type: ignore[arg-type]
     return fit
 
 
@@ -481,7 +481,7 @@ def align_cameras(tracks: list[Tracks], plane_cameras: list[Camera],
     n = len(tracks)
     fps = [_fps(t, c) for t, c in zip(tracks, plane_cameras, strict=True)]
     known = fps[ref] is not None and all(f is not None for f in fps)
-    fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0
+    fps_ref = float(fps[ref]) if fps[ref] is not None else 30.0  # type: ignore[arg-type]
     rho = [fps_ref / f if known else 1.0 for f in fps]  # type: ignore[operator]
     # ground noise model per camera: one pixel moves a point at distance d by d^2 / (f h)
     noise = [(c.center[:2], cfg.pixel_noise / (c.focal * max(c.center[2], 0.3)))

@@ -60,7 +60,7 @@ def global_clocks(n: int, ref: int, pairs: list[PairAlignment], cfg: AlignConfig
     edges = [(p.i, p.j, p.fit.offset, np.log(p.fit.rate),  # type: ignore[union-attr]
               max(0.05, 1.0 - p.ambiguity), p.fit.offset_sd,  # type: ignore[union-attr]
               p.fit.rate_sd / p.fit.rate) for p in usable]  # type: ignore[union-attr]
-    a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)
+    a, b, ok = solve_time(n, edges, ref, tolerance=cfg.offset_tolerance)  # type: ignore[arg-type]
     # a camera whose every pair disagrees with the others keeps its most confident pair
     # (flagged ambiguous by its confidence) rather than dropping out of the rig
     for c in range(n):

@@ -130,7 +130,7 @@ def plot_ground_alignment(result: AlignmentResult, path: str | Path | None = Non
         axis = cam.R[2]  # optical axis in world coordinates
         d = axis[:2] / max(np.linalg.norm(axis[:2]), 1e-9)
         ax.plot(*center[:2], "^", ms=9, color=col, mec="k")
-        ax.annotate("", xy=center[:2] + 1.5 * d, xytext=center[:2],
+        ax.annotate("", xy=center[:2] + 1.5 * d, xytext=center[:2],  # type: ignore[arg-type]
                     arrowprops={"arrowstyle": "->", "color": col, "lw": 1.5})
         flag = "" if not result.flags.get(cam.name) else " !"
         ax.text(center[0], center[1], f" {cam.name} ({result.confidence[cam.name]:.2f}){flag}",

@@ -211,11 +211,11 @@ def _cluster_all(grounds: list[NDArray[np.float64]], gate_m: float
                 centres = sums[:, :k_used] / counts[:, :k_used, None]
             cost = norm_xy(g[:, :, None] - centres[:, None])  # (T, P, K)
             exists = np.arange(k_used)[None, :] < n_cl[:, None]
-            cost = np.where(valid[:, :, None] & exists[:, None, :], cost, np.inf)
-            best, solved = row_minima_assignment(cost, valid)
+            cost = np.where(valid[:, :, None] & exists[:, None, :], cost, np.inf)  # type: ignore[index]
+            best, solved = row_minima_assignment(cost, valid)  # type: ignore[arg-type]
             assign = np.where(valid, best, -1)
-            for t in np.flatnonzero(~solved & (n_cl > 0) & valid.any(1)):
-                rows = np.flatnonzero(valid[t])
+            for t in np.flatnonzero(~solved & (n_cl > 0) & valid.any(1)):  # type: ignore[call-overload]
+                rows = np.flatnonzero(valid[t])  # type: ignore[index]
                 r, q = linear_sum_assignment(cost[t][np.ix_(rows, np.arange(n_cl[t]))])
                 assign[t] = -1
                 assign[t, rows[r]] = q

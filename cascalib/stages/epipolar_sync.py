@@ -270,7 +270,7 @@ def first_association(views: list[NDArray[np.float64]], cams: list[Camera],
     if consistency is not None:
         gates["consistency"] = consistency
     return associate(views, cams, times, height=height, reference=reference, link=False,
-                     **gates)
+                     **gates)  # type: ignore[arg-type]
 
 
 def shared_groups(obs_a: NDArray[np.float64], obs_b: NDArray[np.float64], max_points: int,

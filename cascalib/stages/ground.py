@@ -271,7 +271,7 @@ def link_tracklets(xy: NDArray[np.float64], track_ids: NDArray[np.int64] | None 
     n_f, n_p = xy.shape[:2]
     ok = np.isfinite(xy).all(-1)
     if track_ids is None or not (track_ids[ok] >= 0).any():
-        ids = _hungarian_ids(xy, ok, max_gap, jump_threshold, link_speed)
+        ids = _hungarian_ids(xy, ok, max_gap, jump_threshold, link_speed)  # type: ignore[arg-type]
     else:
         ids = np.where(ok & (track_ids >= 0), track_ids, -1)
         # detections without an id get fresh singleton ids (dropped below as too short)

@@ -43,7 +43,7 @@ def evidence(results: list[IcpResult | None], sig: float, la: Lanes, lb: Lanes, 
 def evidence_sigma(results: list[IcpResult | None], cfg: AlignConfig) -> float:
     """Residual scale of a pair's evidence: the best candidate's RMS (one lap of a loop off
     fits to a few decimetres, the true offset to the detection noise)."""
-    rms = [r.rms for r in results if plausible(r, cfg)]
+    rms = [r.rms for r in results if plausible(r, cfg)]  # type: ignore[union-attr]
     return max(0.5 * cfg.refine_sigma, min(rms, default=cfg.sigma))
 
 

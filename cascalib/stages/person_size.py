@@ -125,7 +125,7 @@ def split_by_size(points: NDArray[np.float64], tracks: NDArray[np.int64],
         i = np.arange(window, n - window + 1)  # cut before point i
         # a median of w noisy values has a standard error of about 1.25 sd / sqrt(w)
         z = np.abs(med[i] - med[i - window]) / (1.25 * sd * np.sqrt(2 / window))
-        cuts = []
+        cuts = []  # type: ignore[var-annotated]
         for k in np.argsort(-z):
             if z[k] < threshold:
                 break

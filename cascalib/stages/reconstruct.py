@@ -70,7 +70,7 @@ def prepare(tracks: list[Tracks], calibration: Calibration) -> SessionData:
     links = [_frame_links(t) for t in ordered]
     sizes = [t.image_size or cam.image_size
              for t, cam in zip(ordered, calibration.cameras, strict=True)]
-    ref = calibration.names.index(calibration.reference_camera)
+    ref = calibration.names.index(calibration.reference_camera)  # type: ignore[arg-type]
     times = np.arange(kps[ref].shape[0], dtype=np.float64)
     rt = ordered[ref]
     fps = rt.fps
@@ -184,7 +184,7 @@ def reconstruct(data: SessionData, cameras: list[Camera], cfg: RefineConfig, hei
         Reprojection errors (px), NaN where unobserved.
     """
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height,
-                      **cfg.association_gates(refined=True))
+                      **cfg.association_gates(refined=True))  # type: ignore[arg-type]
     assoc = stitch_tracks(assoc, fps=data.fps)
     points, err = triangulate_groups(assoc, cameras, np.arange(26))
     # stitching and linking can swap two people who pass close: cut where the size jumps

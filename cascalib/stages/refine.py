@@ -132,7 +132,7 @@ def _clock_check_groups(data: SessionData, cameras: list[Camera], cfg: RefineCon
     # the refined ground gate with the first round's (looser) triangulation check
     gates = cfg.association_gates(refined=True) | {"consistency": cfg.consistency}
     assoc = associate(views_at(data, cameras), cameras, data.times, height=height, link=False,
-                      **gates)  # no tracks needed
+                      **gates)  # type: ignore[arg-type]  # no tracks needed
     return assoc, assoc.subset(np.arange(0, assoc.n_groups, max(1, assoc.n_groups // 2000)))
 
 
@@ -175,7 +175,7 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
-                             rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,
+                             rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,  # type: ignore[arg-type]
                              rng=rng, sd=sd)
         cost, new_cost = _clock_costs(data, groups, cameras, new, joints)
         kept = new_cost < cost * (1.0 + cfg.time_tie_tolerance)
@@ -196,7 +196,7 @@ def _round_association(rounds: SessionData, cameras: list[Camera], cfg: RefineCo
     """The persons of the rounds' reference times associated across the cameras: with the
     first round's wide gates and ground warps, or ``refined`` (cameras out of a solve)."""
     return associate(views_at(rounds, cameras), cameras, rounds.times, height=height,
-                     reference=reference, **cfg.association_gates(refined=refined))
+                     reference=reference, **cfg.association_gates(refined=refined))  # type: ignore[arg-type]
 
 
 def _reassociate(rounds: SessionData, cameras: list[Camera], cfg: RefineConfig, height: float,
@@ -317,7 +317,7 @@ def _solve_rounds(run: _Run, cameras: list[Camera], *, least: int, most: int,
         sel = _select(assoc, data.sizes, cfg.max_groups, run.joints, cfg)
         kw = dict(height=run.height, n_persons=persons_per_time(assoc),
                   reference=data.reference, targets=targets, fixed=run.fixed)
-        prob = make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)
+        prob = make_problem(assoc.subset(sel), cameras, cfg, solved=refined, **kw)  # type: ignore[arg-type]
         before = cameras
         cameras, _, info, graph, values = solve(prob, cfg)
         run.solves.append(info)

@@ -273,7 +273,7 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
             _hold_intrinsics(graph, c, cam, prob.model)
             continue
         if prob.model == "f":
-            graph.addPriorCal3f(K(c), _calibration(cam, "f"),
+            graph.addPriorCal3f(K(c), _calibration(cam, "f"),  # type: ignore[arg-type]
                                 gtsam.noiseModel.Isotropic.Sigma(1, 0.3 * cam.focal))
             continue
         w, h = cam.image_size
@@ -297,7 +297,7 @@ def _add_intrinsic_priors(graph: gtsam.NonlinearFactorGraph, prob: GraphProblem,
         cov[:2, :2] = 0.5 * (loose + tight) * np.eye(2) + 0.5 * (loose - tight) * (
             np.ones((2, 2)) - np.eye(2))
         prior = gtsam.PriorFactorCal3_S2 if prob.model == "s2" else gtsam.PriorFactorCal3DS2
-        graph.add(prior(K(c), _calibration(mean, prob.model),
+        graph.add(prior(K(c), _calibration(mean, prob.model),  # type: ignore[arg-type]
                         gtsam.noiseModel.Gaussian.Covariance(cov)))
 
 
@@ -306,16 +306,16 @@ def _hold_intrinsics(graph: gtsam.NonlinearFactorGraph, c: int, cam: Camera, mod
     """A prior that holds camera ``c`` at its (square-pixel, distortion-free) ``cam.K``."""
     f = cam.focal
     if model == "f":
-        graph.addPriorCal3f(K(c), _calibration(cam, "f"),
+        graph.addPriorCal3f(K(c), _calibration(cam, "f"),  # type: ignore[arg-type]
                             gtsam.noiseModel.Isotropic.Sigma(1, 1e-4 * f))
         return
     sig = [1e-4 * f, 1e-4 * f, 1e-4, 1e-2, 1e-2]
     if model == "s2":
-        graph.add(gtsam.PriorFactorCal3_S2(K(c), _calibration(cam, "s2"),
+        graph.add(gtsam.PriorFactorCal3_S2(K(c), _calibration(cam, "s2"),  # type: ignore[arg-type]
                                            gtsam.noiseModel.Diagonal.Sigmas(np.array(sig))))
         return
     lens = gtsam.noiseModel.Diagonal.Sigmas(np.array(sig + [1e-6] * 4))
-    graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(cam, "ds2"), lens))
+    graph.add(gtsam.PriorFactorCal3DS2(K(c), _calibration(cam, "ds2"), lens))  # type: ignore[arg-type]
 
 
 def build_graph(prob: GraphProblem, cfg: RefineConfig) -> gtsam.NonlinearFactorGraph:
@@ -386,8 +386,8 @@ def _optimizer(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, cfg: Ref
     if method == "gauss-newton":
         params, optimizer = gtsam.GaussNewtonParams(), gtsam.GaussNewtonOptimizer
     else:
-        params, optimizer = gtsam.LevenbergMarquardtParams(), gtsam.LevenbergMarquardtOptimizer
-        params.setlambdaLowerBound(cfg.lambda_lower_bound)
+        params, optimizer = gtsam.LevenbergMarquardtParams(), gtsam.LevenbergMarquardtOptimizer  # type: ignore[assignment]
+        params.setlambdaLowerBound(cfg.lambda_lower_bound)  # type: ignore[attr-defined]
     params.setMaxIterations(cfg.max_iterations)
     params.setRelativeErrorTol(cfg.relative_tolerance)
     if schur:
@@ -509,9 +509,9 @@ def unpack(values: gtsam.Values, prob: GraphProblem) -> tuple[list[Camera], NDAr
             Kmat = values.atCal3_S2(K(c)).K()
             dist = np.zeros(5)
         else:
-            cal = values.atCal3DS2(K(c))
+            cal = values.atCal3DS2(K(c))  # type: ignore[assignment]
             Kmat = cal.K()
-            k1, k2, p1, p2 = cal.k()
+            k1, k2, p1, p2 = cal.k()  # type: ignore[attr-defined]
             dist = np.array([k1, k2, p1, p2, 0.0])
         # skew is held at 0 by a tight prior: drop its numerical residue, so that writers of
         # skew-free formats (COLMAP) accept the camera

@@ -143,7 +143,7 @@ def split_halves(assoc: Association, order: NDArray[np.int64], *, min_groups: in
     t = assoc.times[order]
     first = t <= np.median(t)
     seen = np.isfinite(assoc.obs[order][..., 0]).any(-1)  # (G, C)
-    counts = np.stack([seen[first].sum(0), seen[~first].sum(0)])
+    counts = np.stack([seen[first].sum(0), seen[~first].sum(0)])  # type: ignore[index]
     present = seen.any(0)
     if (counts[:, present] < min_groups).any():
         first = (np.arange(order.size) * n_blocks // max(order.size, 1)) % 2 == 0

@@ -109,7 +109,7 @@ def _foot_and_head(points: NDArray[np.float64], names: tuple[str, ...], cfg: Ref
     with np.errstate(invalid="ignore"):
         low = np.nanmin(np.where(np.isfinite(z), z, np.inf), axis=1)
         both = np.isfinite(z).all(1)
-        stance[:, [ia, ib]] = both[:, None] & (z - low[:, None] < cfg.stance_tolerance_m)
+        stance[:, [ia, ib]] = both[:, None] & (z - low[:, None] < cfg.stance_tolerance_m)  # type: ignore[index]
     joint = head_joint(points, names)
     if joint is not None:
         ih = names.index(joint)
@@ -183,8 +183,8 @@ def make_problem(assoc: Association, cameras: list[Camera], cfg: RefineConfig, *
     torso = None
     if model != "f" and cfg.upright_sigma_m > 0:
         upright = head.any(1)
-        lean = expected_torso_offsets(torso_offsets(points, names), assoc.velocity, upright)
-        torso = np.where(upright[:, None], lean, np.nan)
+        lean = expected_torso_offsets(torso_offsets(points, names), assoc.velocity, upright)  # type: ignore[arg-type]
+        torso = np.where(upright[:, None], lean, np.nan)  # type: ignore[index]
     return GraphProblem(graph_cams, obs, names, points, stance, head, bones, lengths, reference,
                         model, height, n_persons, sigma,  # type: ignore[arg-type]
                         {c: cameras[c] for c in fixed}, scale, torso, lens)

@@ -75,7 +75,7 @@ class SingleViewConfig(BaseModel):
     min_track_detections: int = Field(
         5, ge=2, description="Upright frames a track needs to get its own height.")
     upper_points: list[Literal["shoulder", "hip", "neck", "head_top"]] = Field(
-        default_factory=lambda: ["shoulder", "hip", "neck", "head_top"],
+        default_factory=lambda: ["shoulder", "hip", "neck", "head_top"],  # type: ignore[arg-type]
         description="Points above the ankle centre to use (the paper uses the shoulder centre "
                     "only). The hip centre lengthens the lever that fixes each body's vertical "
                     "axis; neck and head top are used only when the skeleton has them.")
@@ -295,12 +295,12 @@ def _upright(tracks: Tracks, raw: Tracks, cfg: SingleViewConfig) -> NDArray[np.b
     size = tracks.require_image_size()
     kw = dict(max_bend_deg=cfg.max_bend_deg, min_confidence=cfg.min_confidence,
               leg_torso_ratio=cfg.leg_torso_ratio, min_pixel_height=cfg.min_pixel_height)
-    mask = upright_mask(tracks.canonical(), size, border_px=cfg.border_px, **kw)
+    mask = upright_mask(tracks.canonical(), size, border_px=cfg.border_px, **kw)  # type: ignore[arg-type]
     if raw is not tracks:
         inside = upright_mask(raw.canonical(), size, border_px=cfg.border_px,
-                              **{**kw, "max_bend_deg": np.inf, "leg_torso_ratio": (0.0, np.inf),
+                              **{**kw, "max_bend_deg": np.inf, "leg_torso_ratio": (0.0, np.inf),  # type: ignore[arg-type]
                                  "min_pixel_height": 0.0})
-        shape = upright_mask(tracks.canonical(), size, border_px=-np.inf, **kw)
+        shape = upright_mask(tracks.canonical(), size, border_px=-np.inf, **kw)  # type: ignore[arg-type]
         mask = inside & shape
     return mask
 

@@ -247,7 +247,7 @@ def fit_observations(obs: Observations, image_size: tuple[int, int], cfg: Single
     known = focal is not None
     c0 = (np.array([(w - 1) / 2.0, (h - 1) / 2.0]) if principal_point is None
           else np.asarray(principal_point, dtype=np.float64).copy())
-    f_rng = (float(focal), float(focal)) if known else focal_range(image_size,
+    f_rng = (float(focal), float(focal)) if known else focal_range(image_size,  # type: ignore[arg-type]
                                                                      cfg.fov_range_deg)
     diag = _check_spread(obs, img_diag, cfg, known)
     o = obs.take(_subsample(obs, image_size, cfg.max_detections, rng))

@@ -83,7 +83,7 @@ def plot_single_view(result: SingleViewResult, frame: NDArray[np.uint8] | None =
                                (~result.inliers, "tab:red", "outlier")):
         idx = shown[mask[shown]]
         seg = np.stack([result.ankle[idx], shoulder[idx]], axis=1)
-        ax.add_collection(LineCollection(seg, colors=color, linewidths=1.0,
+        ax.add_collection(LineCollection(seg, colors=color, linewidths=1.0,  # type: ignore[arg-type]
                                          label=f"{label} ({int(mask.sum())})"))
     lo, hi = result.focal_interval
     ax.set_title(f"{result.camera}: f = {result.focal:.0f} px [{lo:.0f}, {hi:.0f}], "

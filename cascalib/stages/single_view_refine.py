@@ -253,7 +253,7 @@ class _Problem:
         b, r = self.n_base, self.n_r
         out = [self.pixel_residuals(x), self.ratio_w * x[b:b + r], self.prior_w * x[b + r:]]
         if self.fit_lean:
-            out.append([self.lean_w * x[self.i_lean]])
+            out.append([self.lean_w * x[self.i_lean]])  # type: ignore[arg-type]
         return np.concatenate(out)
 
     def row_detections(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

@@ -310,7 +310,7 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     if not chunks or not b.xy:  # nobody walking in one of the views: nothing to compare
         offsets = (np.arange(n_off) - (b.length - 1)) * step
         logger.warning("sync %s-%s: no moving person in one of the views", a.camera, b.camera)
-        return SyncCurve(offsets, np.zeros(n_off), [], 1.0)
+        return SyncCurve(offsets, np.zeros(n_off), [], 1.0)  # type: ignore[arg-type]
     G = _dense(b, n_fft, chunk + 1)
     # blocks of chunks: each (chunks, lanes, n_fft) correlation stays about 8 MB
     block = max(1, int(2**19 // (G[0].shape[0] * n_fft)))
@@ -328,14 +328,14 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     score = smooth.max(axis=1)
     if max_offset is not None:
         score = np.where(np.abs(offsets) <= max_offset, score, 0.0)
-    cands = _peaks(offsets, score, smooth, angle_bins, n_candidates - n_candidates // 2,
+    cands = _peaks(offsets, score, smooth, angle_bins, n_candidates - n_candidates // 2,  # type: ignore[arg-type]
                    nms_frames)
     # Large offsets overlap little and collect few votes: also take the best peaks of the
     # vote per sqrt(overlap), so a short true overlap can beat a long periodic near-fit in
     # the (per-frame) ICP verification.
     overlap = _overlap(a, b, n_off)
     norm = score / np.sqrt(np.maximum(overlap, 4 * min_overlap))
-    for c in _peaks(offsets, norm, smooth, angle_bins, n_candidates, nms_frames):
+    for c in _peaks(offsets, norm, smooth, angle_bins, n_candidates, nms_frames):  # type: ignore[arg-type]
         if len(cands) >= n_candidates:
             break
         if all(abs(c.offset - d.offset) >= nms_frames for d in cands):
@@ -345,7 +345,7 @@ def search_offsets(a: GridTrack, b: GridTrack, *, max_offset: float | None = Non
     logger.debug("sync %s-%s: %d chunks, best offset %.1f (ratio %.2f)", a.camera, b.camera,
                  len(chunks), cands[0].offset if cands else np.nan, ratio)
     angles = (np.argmax(smooth, axis=1) + 0.5) * 2 * np.pi / angle_bins
-    return SyncCurve(offsets, score, cands, float(ratio), np.angle(np.exp(1j * angles)))
+    return SyncCurve(offsets, score, cands, float(ratio), np.angle(np.exp(1j * angles)))  # type: ignore[arg-type]
 
 
 def _overlap(a: GridTrack, b: GridTrack, n_off: int) -> NDArray[np.float64]:
@@ -453,7 +453,7 @@ def irls_l1(A: NDArray[np.float64], y: NDArray[np.float64], w0: NDArray[np.float
     x = np.zeros(A.shape[1])
     for _ in range(n_iter):
         sw = np.sqrt(w)
-        x = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)[0]
+        x = np.linalg.lstsq(A * sw[:, None], y * sw, rcond=None)[0]  # type: ignore[assignment]
         r = np.abs(A @ x - y)
         w = w0 / np.maximum(r, eps)
     return x

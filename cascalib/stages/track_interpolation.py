@@ -53,7 +53,7 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
     # mean joint displacement of every pair of persons present in consecutive frames (only
     # those: empty slots are common, and the full (F-1, P, P, J) difference is large)
     present = np.isfinite(keypoints[..., 0]).any(-1)  # (F, P)
-    k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])
+    k, p, q = np.nonzero(present[:-1, :, None] & present[1:, None, :])  # type: ignore[index]
     d = np.full((n_f - 1, n_p, n_p), np.nan)
     xy = np.ascontiguousarray(keypoints[..., :2])  # gathers of whole rows: twice as fast
     with np.errstate(invalid="ignore"):  # 0 / 0 for pairs with no joint in common: NaN
@@ -64,10 +64,10 @@ def frame_links(keypoints: NDArray[np.float64], track_ids: NDArray[np.int64] | N
         size = norm_xy(ext)  # (F, P)
     cost = np.where(np.isfinite(d), d / np.maximum(size[:-1, :, None], 1.0), np.inf)
     rows_ok = np.isfinite(cost).any(2)
-    best, solved = row_minima_assignment(cost, rows_ok)
+    best, solved = row_minima_assignment(cost, rows_ok)  # type: ignore[arg-type]
     c_best = np.take_along_axis(cost, best[..., None], -1)[..., 0]
     links[:-1] = np.where(solved[:, None] & rows_ok & (c_best < gate), best, -1)
-    for k in np.flatnonzero(~solved & rows_ok.any(1)):  # two persons want one slot: Hungarian
+    for k in np.flatnonzero(~solved & rows_ok.any(1)):  # type: ignore[assignment, call-overload]  # two persons want one slot: Hungarian
         c = cost[k]
         r, q = linear_sum_assignment(np.where(np.isfinite(c), c, 1e9))
         good = c[r, q] < gate

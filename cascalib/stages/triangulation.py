@@ -178,11 +178,11 @@ def triangulate(cameras: list[Camera], uv: NDArray[np.float64], conf: NDArray[np
         conf = np.asarray(conf, dtype=np.float64)
     kw = dict(huber_px=huber_px, n_iter=n_iter, min_views=min_views)
     if n <= BLOCK_POINTS:
-        return _triangulate_block(cameras, uv, conf, **kw)
+        return _triangulate_block(cameras, uv, conf, **kw)  # type: ignore[arg-type]
     blocks = [slice(i, i + BLOCK_POINTS) for i in range(0, n, BLOCK_POINTS)]
 
     def one(b: slice) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return _triangulate_block(cameras, uv[:, b], None if conf is None else conf[:, b], **kw)
+        return _triangulate_block(cameras, uv[:, b], None if conf is None else conf[:, b], **kw)  # type: ignore[arg-type]
 
     if workers > 1:
         with ThreadPoolExecutor(max_workers=min(workers, len(blocks))) as pool:
@@ -223,6 +223,6 @@ def _triangulate_block(cameras: list[Camera], uv: NDArray[np.float64],
     X[n_views < min_views] = np.nan
     errors = np.where(seen, reprojection_errors(cameras, X, uv), np.nan)
     # an observation whose point lies behind its camera is an outlier, not a missing value
-    behind = np.isnan(errors) & seen & np.isfinite(X).all(-1)[None]
+    behind = np.isnan(errors) & seen & np.isfinite(X).all(-1)[None]  # type: ignore[index]
     errors[behind] = np.inf
     return X, errors

@@ -127,7 +127,7 @@ def _person_heights(height: float | Mapping[int, float] | Sequence[float], defau
     """Height (m) of each detection from a scalar, a {track_id: height} map or a list by id."""
     if np.isscalar(height):
         return np.full(len(ids), float(height))  # type: ignore[arg-type]
-    lookup = dict(height) if isinstance(height, Mapping) else dict(enumerate(height))
+    lookup = dict(height) if isinstance(height, Mapping) else dict(enumerate(height))  # type: ignore[arg-type]
     return np.array([float(lookup.get(int(i), default)) for i in ids])
 
 
