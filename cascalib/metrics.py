@@ -45,6 +45,7 @@ __all__ = [
     "CameraErrors",
     "ErrorSummary",
     "compare_calibrations",
+    "identity_switches",
     "match_persons",
     "reprojection_stats",
     "rotation_error_in_sigmas",
@@ -449,3 +450,49 @@ def match_persons(estimated: NDArray[np.float64], truth: NDArray[np.float64],
     present = np.isfinite(est[..., 0]).any(-1)
     return errors, person, present
 
+
+
+
+def identity_switches(ids: NDArray[np.int64], estimated: NDArray[np.float64],
+                      truth: NDArray[np.float64], joints: ArrayLike | None = None,
+                      max_error_m: float = 0.5) -> int:
+    """Identity switches of reconstructed persons against the true ones (CLEAR-MOT's IDSW).
+
+    At each time the reconstructed slots with an identity are matched one-to-one to the true
+    persons (Hungarian, on the median joint distance, below ``max_error_m``); a switch is a
+    change of the identity matched to a true person between two consecutive times it is matched.
+
+    Parameters
+    ----------
+    ids : ndarray of int, shape (T, P)
+        Identity of each reconstructed slot, -1 for none (such slots are not matched).
+    estimated : ndarray, shape (T, P, J, 3)
+        Reconstructed joints, NaN where missing.
+    truth : ndarray, shape (T, Pt, J, 3)
+        True joints at the same times.
+    joints : array_like of int, optional
+        Joints compared (default all).
+    max_error_m : float
+        Largest median joint distance (m) of a match.
+
+    Returns
+    -------
+    int
+        Switches summed over the true persons.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    idx = np.arange(estimated.shape[2]) if joints is None else np.asarray(joints)
+    d = np.linalg.norm(estimated[:, :, None, idx] - truth[:, None, :, idx], axis=-1)
+    cost = np.nan_to_num(nanmedian_last(d), nan=np.inf)  # (T, P, Pt)
+    cost[ids < 0] = np.inf
+    last = np.full(truth.shape[1], -1)
+    switches = 0
+    for t in np.flatnonzero(np.isfinite(cost).any(axis=(1, 2))):
+        c = cost[t]
+        r, q = linear_sum_assignment(np.where(c < max_error_m, c, 1e9))
+        for a, b in zip(r, q, strict=True):
+            if c[a, b] < max_error_m:
+                switches += int(last[b] >= 0 and last[b] != ids[t, a])
+                last[b] = ids[t, a]
+    return switches
