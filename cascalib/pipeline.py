@@ -24,6 +24,7 @@ from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.poses import Poses3D
 from cascalib.stages.align import AlignmentResult, align_cameras
+from cascalib.stages.multiview_path import MultiviewInitial, known_clocks, multiview_initial
 from cascalib.stages.refine import RefineResult, refine
 from cascalib.stages.single_view import calibrate_single_view
 from cascalib.stages.single_view_result import SingleViewResult
@@ -62,6 +63,8 @@ class CalibrationResult:
         The configuration used.
     timings : dict of str to float
         Seconds spent per stage.
+    save_timings : dict of str to float
+        Seconds :meth:`save` spent on the calibration files, the poses and the report.
     """
 
     calibration: Calibration
@@ -72,6 +75,7 @@ class CalibrationResult:
     config: CalibrationConfig
     tracks: list[Tracks] = field(repr=False, default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
+    save_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def accepted(self) -> bool:
@@ -95,7 +99,7 @@ class CalibrationResult:
                 "reprojection_median_px": q.reprojection_median_px if q else None,
             })
         return {"ok": self.accepted, "reference_camera": self.calibration.reference_camera,
-                "cameras": cams, "timings_s": self.timings}
+                "cameras": cams, "timings_s": self.timings, "save_timings_s": self.save_timings}
 
     def save(self, outdir: str | Path, formats: Sequence[str] = ("json",),
              report: bool = True) -> dict[str, Path]:
@@ -149,9 +153,10 @@ def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:
 
 
 def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.random.Generator,
-                 progress: Progress) -> dict[str, SingleViewResult]:
+                 progress: Progress) -> tuple[dict[str, SingleViewResult], dict[str, str]]:
+    """Stage I per camera: its results, and why it could not decide the others."""
     results: dict[str, SingleViewResult] = {}
-    failures: list[str] = []
+    failures: dict[str, str] = {}
     for i, t in enumerate(tracks):
         try:
             k = cfg.known_intrinsics.get(t.camera)
@@ -160,13 +165,16 @@ def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.rando
                                                       rng=rng, known_intrinsics=known)
             log.info("stage I %s", results[t.camera].summary())
         except EstimationFailed as exc:
-            failures.append(str(exc))
+            failures[t.camera] = str(exc)
+            log.info("stage I %s: %s", t.camera, exc)
         progress("single_view", (i + 1) / len(tracks))
-    if failures:
-        raise EstimationFailed("single-view calibration failed for "
-                               f"{len(failures)} of {len(tracks)} cameras:\n  "
-                               + "\n  ".join(failures), field="single_view")
-    return results
+    return results, failures
+
+
+def _stage_i_failed(failures: dict[str, str], n: int, why: str) -> EstimationFailed:
+    return EstimationFailed(f"single-view calibration failed for {len(failures)} of {n} cameras "
+                            f"and {why}:\n  " + "\n  ".join(failures.values()),
+                            field="single_view")
 
 
 def _apply_known(cameras: list[Camera], cfg: CalibrationConfig) -> list[Camera]:
@@ -220,18 +228,30 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    single = _single_view(tracks, cfg, rng, report)
+    single, failures = _single_view(tracks, cfg, rng, report)
     timings["single_view"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
-    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                            progress=lambda f: report("sync", f), height=cfg.height,
-                            fixed_intrinsics=tuple(cfg.known_intrinsics))
-    initial = aligned.calibration
-    if cfg.synchronized:
-        initial = _synchronized(initial, tracks)
+    left_out: dict[str, str] = {}
+    aligned: AlignmentResult | MultiviewInitial
+    if not failures:  # stages II-IV from every camera's ground plane
+        plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
+        aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
+                                progress=lambda f: report("sync", f), height=cfg.height,
+                                fixed_intrinsics=tuple(cfg.known_intrinsics))
+        initial = aligned.calibration
+        if cfg.synchronized:
+            initial = _synchronized(initial, tracks)
+    else:  # the multi-view start: the joints as point matches, on known clocks
+        clocks = known_clocks(tracks, cfg.synchronized)
+        if clocks is None:
+            raise _stage_i_failed(failures, len(tracks), "the clocks are unknown, so the "
+                                  "multi-view start cannot replace it (give --synchronized, or "
+                                  "timestamps on one clock)")
+        aligned = multiview_initial(tracks, cfg, single, clocks, rng)
+        initial, left_out = aligned.calibration, aligned.left_out
+        tracks = [t for t in tracks if t.camera in initial.names]
     report("sync", 1.0)
     timings["sync"] = time.perf_counter() - t0
 
@@ -250,5 +270,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
                     refined.residuals)
     report("triangulate", 1.0)
     timings["triangulate"] = time.perf_counter() - t0
-    return CalibrationResult(refined.calibration, poses, single, aligned, refined, cfg,
-                             tracks, timings)
+    calibration = refined.calibration
+    if left_out:
+        calibration.quality["left_out"] = dict(left_out)
+    return CalibrationResult(calibration, poses, single, aligned, refined, cfg, tracks, timings,
+                             left_out=left_out, stage_i_advice=failures)
