@@ -24,7 +24,6 @@ from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.poses import Poses3D
 from cascalib.stages.align import AlignmentResult, align_cameras
-from cascalib.stages.multiview_path import MultiviewInitial, known_clocks, multiview_initial
 from cascalib.stages.refine import RefineResult, refine
 from cascalib.stages.single_view import calibrate_single_view
 from cascalib.stages.single_view_result import SingleViewResult
@@ -116,15 +115,19 @@ class CalibrationResult:
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
         written: dict[str, Path] = {}
+        t0 = time.perf_counter()
         for fmt in dict.fromkeys(["json", *formats]):
             paths = save_calibration(self.calibration, _calibration_path(outdir, fmt), fmt)
             written[f"calibration:{fmt}"] = Path(paths[0])
-        for p in self.poses.save(outdir / "poses", formats=("npz", "json", "trc", "c3d")):
+        self.save_timings["calibration"] = (t1 := time.perf_counter()) - t0
+        for p in self.poses.save(outdir / "poses"):
             written[f"poses:{p.name}"] = p
+        self.save_timings["poses"] = (t0 := time.perf_counter()) - t1
         if report:
             from cascalib.report import write_report
 
             written["report"] = write_report(self, outdir)
+            self.save_timings["report"] = time.perf_counter() - t0
         return written
 
 
@@ -153,10 +156,9 @@ def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:
 
 
 def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.random.Generator,
-                 progress: Progress) -> tuple[dict[str, SingleViewResult], dict[str, str]]:
-    """Stage I per camera: its results, and why it could not decide the others."""
+                 progress: Progress) -> dict[str, SingleViewResult]:
     results: dict[str, SingleViewResult] = {}
-    failures: dict[str, str] = {}
+    failures: list[str] = []
     for i, t in enumerate(tracks):
         try:
             k = cfg.known_intrinsics.get(t.camera)
@@ -165,16 +167,13 @@ def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.rando
                                                       rng=rng, known_intrinsics=known)
             log.info("stage I %s", results[t.camera].summary())
         except EstimationFailed as exc:
-            failures[t.camera] = str(exc)
-            log.info("stage I %s: %s", t.camera, exc)
+            failures.append(str(exc))
         progress("single_view", (i + 1) / len(tracks))
-    return results, failures
-
-
-def _stage_i_failed(failures: dict[str, str], n: int, why: str) -> EstimationFailed:
-    return EstimationFailed(f"single-view calibration failed for {len(failures)} of {n} cameras "
-                            f"and {why}:\n  " + "\n  ".join(failures.values()),
-                            field="single_view")
+    if failures:
+        raise EstimationFailed("single-view calibration failed for "
+                               f"{len(failures)} of {len(tracks)} cameras:\n  "
+                               + "\n  ".join(failures), field="single_view")
+    return results
 
 
 def _apply_known(cameras: list[Camera], cfg: CalibrationConfig) -> list[Camera]:
@@ -228,30 +227,18 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    single, failures = _single_view(tracks, cfg, rng, report)
+    single = _single_view(tracks, cfg, rng, report)
     timings["single_view"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
-    left_out: dict[str, str] = {}
-    aligned: AlignmentResult | MultiviewInitial
-    if not failures:  # stages II-IV from every camera's ground plane
-        plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
-        aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                                progress=lambda f: report("sync", f), height=cfg.height,
-                                fixed_intrinsics=tuple(cfg.known_intrinsics))
-        initial = aligned.calibration
-        if cfg.synchronized:
-            initial = _synchronized(initial, tracks)
-    else:  # the multi-view start: the joints as point matches, on known clocks
-        clocks = known_clocks(tracks, cfg.synchronized)
-        if clocks is None:
-            raise _stage_i_failed(failures, len(tracks), "the clocks are unknown, so the "
-                                  "multi-view start cannot replace it (give --synchronized, or "
-                                  "timestamps on one clock)")
-        aligned = multiview_initial(tracks, cfg, single, clocks, rng)
-        initial, left_out = aligned.calibration, aligned.left_out
-        tracks = [t for t in tracks if t.camera in initial.names]
+    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
+                            progress=lambda f: report("sync", f), height=cfg.height,
+                            fixed_intrinsics=tuple(cfg.known_intrinsics))
+    initial = aligned.calibration
+    if cfg.synchronized:
+        initial = _synchronized(initial, tracks)
     report("sync", 1.0)
     timings["sync"] = time.perf_counter() - t0
 
@@ -270,8 +257,5 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
                     refined.residuals)
     report("triangulate", 1.0)
     timings["triangulate"] = time.perf_counter() - t0
-    calibration = refined.calibration
-    if left_out:
-        calibration.quality["left_out"] = dict(left_out)
-    return CalibrationResult(calibration, poses, single, aligned, refined, cfg, tracks, timings,
-                             left_out=left_out, stage_i_advice=failures)
+    return CalibrationResult(refined.calibration, poses, single, aligned, refined, cfg,
+                             tracks, timings)
