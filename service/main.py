@@ -24,6 +24,7 @@ from service.core.limits import BodyLimitMiddleware
 from service.core.metrics import Metrics, MetricsMiddleware
 from service.core.problems import install_handlers
 from service.store import Store
+from service.validation import Validator
 
 __all__ = ["create_app"]
 
@@ -100,11 +101,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             log.warning("authentication is OFF: every client sees every job")
         dispatcher = _dispatcher(settings, store)
         metrics = Metrics(store)
-        app.state.cascalib = AppState(settings, store, dispatcher, metrics)
+        validator = Validator(settings)
+        app.state.cascalib = AppState(settings, store, dispatcher, metrics, validator)
         dispatcher.start()
         try:
             yield
         finally:
+            validator.stop()
             dispatcher.stop()
             store.dispose()
 

@@ -14,13 +14,15 @@ from service import store as st
 from service.api.deps import AppState
 from service.core.problems import ProblemError
 from service.models import Job
-from service.uploads import Submission, receive_submission, validate_submission
+from service.uploads import Submission, receive_submission
 
 __all__ = ["submit_job", "links"]
 
 log = logging.getLogger(__name__)
 
 _MAX_KEY = 255
+#: Seconds a client is asked to wait when too many submissions are in progress.
+_RETRY_AFTER = 5
 
 
 def links(job_id: str) -> JobLinks:
@@ -37,6 +39,11 @@ def _replay(existing: Job, sub: Submission) -> tuple[Job, bool]:
                            errors=[InvalidParam(message="key reused with other content",
                                                 field="Idempotency-Key")])
     return existing, True
+
+
+def _by_key(state: AppState, owner: str, key: str) -> Job | None:
+    with state.store.session() as session:
+        return st.find_job_by_key(session, owner=owner, idempotency_key=key)
 
 
 def _commit(state: AppState, sub: Submission, owner: str, key: str | None) -> Job:
@@ -64,22 +71,30 @@ async def submit_job(request: Request, state: AppState, owner: str,
     if idempotency_key is not None and not 0 < len(idempotency_key) <= _MAX_KEY:
         raise ProblemError(422, f"Idempotency-Key must be 1-{_MAX_KEY} characters",
                            errors=[InvalidParam(message="bad length", field="Idempotency-Key")])
+    if state.pending >= state.settings.max_pending_submissions:
+        raise ProblemError(503, f"{state.pending} submissions in progress; retry later",
+                           headers={"Retry-After": str(_RETRY_AFTER)})
+    state.pending += 1
+    try:
+        return await _receive_and_commit(request, state, owner, idempotency_key)
+    finally:
+        state.pending -= 1
+
+
+async def _receive_and_commit(request: Request, state: AppState, owner: str,
+                              idempotency_key: str | None) -> tuple[Job, bool]:
     sub = await receive_submission(request, state.settings, state.store.staging_dir)
     try:
         if idempotency_key is not None:
-            with state.store.session() as session:
-                existing = st.find_job_by_key(session, owner=owner,
-                                              idempotency_key=idempotency_key)
+            existing = await run_in_threadpool(_by_key, state, owner, idempotency_key)
             if existing is not None:
                 return _replay(existing, sub)
-        await run_in_threadpool(validate_submission, sub, state.settings)
+        await state.validator.validate(sub)
         try:
             job = await run_in_threadpool(_commit, state, sub, owner, idempotency_key)
         except IntegrityError:
             # A concurrent retry with the same key won the race: answer with its job.
-            with state.store.session() as session:
-                existing = st.find_job_by_key(session, owner=owner,
-                                              idempotency_key=idempotency_key or "")
+            existing = await run_in_threadpool(_by_key, state, owner, idempotency_key or "")
             if existing is None:
                 raise
             return _replay(existing, sub)

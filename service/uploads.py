@@ -19,14 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
-from starlette.datastructures import UploadFile
-from starlette.exceptions import HTTPException
 from starlette.requests import Request
 
 from api_schemas import InvalidParam, JobOptions
 from cascalib.errors import CascalibError
 from service.core.config import Settings
 from service.core.problems import ProblemError, from_cascalib
+from service.multipart import FormParts, parse_multipart
 from service.inputs import (
     build_config,
     check_session,
@@ -35,7 +34,7 @@ from service.inputs import (
     safe_extract,
     zip_limits,
 )
-from service.store import StoredFile, sha256_file
+from service.store import StoredFile
 
 __all__ = ["Submission", "receive_submission", "validate_submission", "FILES_FIELD",
            "OPTIONS_FIELD"]
@@ -130,57 +129,48 @@ def parse_options(raw: str | None) -> tuple[JobOptions, dict[str, Any]]:
             f"{p.field}: {p.message}" for p in errors), errors=errors) from None
 
 
-async def _read_form(request: Request, settings: Settings) -> tuple[list[UploadFile], str | None]:
-    ctype = request.headers.get("content-type", "")
-    if not ctype.startswith("multipart/form-data"):
-        raise ProblemError(415, "POST /v1/jobs takes multipart/form-data")
-    try:
-        form = await request.form(max_files=settings.max_files, max_fields=16,
-                                  max_part_size=1024 * 1024)
-    except HTTPException as exc:
-        status = 413 if "Too many files" in str(exc.detail) else 400
-        raise _bad(f"malformed multipart body: {exc.detail}", field=FILES_FIELD,
-                   status=status) from None
-    uploads: list[UploadFile] = []
+def _check_parts(sub: Submission, form: FormParts) -> str | None:
+    """The options text; every part is a camera file or the one options field."""
     options: str | None = None
-    for key, value in form.multi_items():
-        if key == FILES_FIELD and isinstance(value, UploadFile):
-            uploads.append(value)
-        elif key == OPTIONS_FIELD and isinstance(value, str) and options is None:
-            options = value
-        else:
-            raise _bad(f"unexpected form part {key!r} (expected '{FILES_FIELD}' files and one "
-                       f"'{OPTIONS_FIELD}' JSON text)", field=key)
-    if not uploads:
+    for name, value in form.fields:
+        if name != OPTIONS_FIELD or options is not None:
+            raise _bad(f"unexpected form part {name!r} (expected '{FILES_FIELD}' files and one "
+                       f"'{OPTIONS_FIELD}' JSON text)", field=name)
+        options = value
+    for part in form.files:
+        if part.name != FILES_FIELD:
+            raise _bad(f"unexpected form part {part.name!r} (expected '{FILES_FIELD}' files "
+                       f"and one '{OPTIONS_FIELD}' JSON text)", field=part.name)
+        camera = sub.cameras[len(sub.files)]
+        if part.size == 0:
+            raise _bad("the file is empty", field=FILES_FIELD, file=part.filename, camera=camera)
+        sub.files.append(StoredFile(role=camera, path=str(part.path.relative_to(sub.folder)),
+                                    size=part.size, sha256=part.sha256,
+                                    client_name=part.filename))
+    if not form.files:
         raise _bad("no camera file uploaded", field=FILES_FIELD)
-    return uploads, options
+    return options
 
 
 async def receive_submission(request: Request, settings: Settings, staging: Path) -> Submission:
-    """Parse, limit and stage a submission (checksums, no keypoint parsing yet)."""
-    uploads, raw_options = await _read_form(request, settings)
-    options, options_json = parse_options(raw_options)
+    """Stream a submission into a new staging folder: file parts are written once, under
+    server-made names, and checksummed as they arrive (no keypoint parsing yet)."""
     staging.mkdir(parents=True, exist_ok=True)
-    sub = Submission(Path(tempfile.mkdtemp(dir=staging)), options, options_json)
+    sub = Submission(Path(tempfile.mkdtemp(dir=staging)), JobOptions(), {})
+    (sub.folder / "inputs").mkdir()
+
+    def place(filename: str, index: int) -> Path:
+        camera, ext = camera_name(filename)
+        if camera in sub.cameras:
+            raise _bad(f"two files for camera {camera!r}", field=FILES_FIELD, file=filename,
+                       camera=camera)
+        sub.cameras.append(camera)
+        return sub.folder / "inputs" / (f"cam_{index}" + (f".{ext}" if ext else ""))
+
     try:
-        (sub.folder / "inputs").mkdir()
-        for i, upload in enumerate(uploads):
-            camera, ext = camera_name(upload.filename)
-            if camera in sub.cameras:
-                raise _bad(f"two files for camera {camera!r}", field=FILES_FIELD,
-                           file=upload.filename, camera=camera)
-            rel = f"inputs/cam_{i}" + (f".{ext}" if ext else "")
-            with (sub.folder / rel).open("wb") as out:
-                await upload.seek(0)
-                shutil.copyfileobj(upload.file, out, 2**20)
-            path = sub.folder / rel
-            size = path.stat().st_size
-            if size == 0:
-                raise _bad("the file is empty", field=FILES_FIELD, file=upload.filename,
-                           camera=camera)
-            sub.cameras.append(camera)
-            sub.files.append(StoredFile(role=camera, path=rel, size=size,
-                                        sha256=sha256_file(path), client_name=upload.filename))
+        form = await parse_multipart(request.headers.get("content-type", ""), request.stream(),
+                                     place, max_files=settings.max_files)
+        sub.options, sub.options_json = parse_options(_check_parts(sub, form))
     except BaseException:
         sub.discard()
         raise

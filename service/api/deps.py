@@ -16,6 +16,7 @@ from service.core.config import Settings
 from service.core.metrics import Metrics
 from service.core.problems import ProblemError
 from service.store import Store
+from service.validation import Validator
 
 __all__ = ["AppState", "Dispatcher", "SessionDep", "StateDep", "TokenDep", "ANONYMOUS"]
 
@@ -41,6 +42,9 @@ class AppState:
     store: Store
     dispatcher: Dispatcher
     metrics: Metrics
+    validator: Validator
+    #: Submissions being received or validated now (bounded by max_pending_submissions).
+    pending: int = 0
 
 
 def _state(request: Request) -> AppState:

@@ -92,6 +92,16 @@ class Settings(BaseSettings):
         default_factory=list, description="Comma-separated origins allowed by CORS."
     )
     page_limit: int = Field(default=100, ge=1, description="Largest page of GET /v1/jobs.")
+    validation_workers: int = Field(
+        default=1, ge=1, le=64,
+        description="Processes that parse uploads before a job is accepted (off the API's "
+        "event loop); further submissions wait for one.",
+    )
+    max_pending_submissions: int = Field(
+        default=16, ge=1,
+        description="Submissions being received or validated at once; beyond, 503 with "
+        "Retry-After.",
+    )
 
     @field_validator("api_tokens", "cors_origins", mode="before")
     @classmethod

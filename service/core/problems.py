@@ -41,6 +41,15 @@ class ProblemError(Exception):
         self.errors = list(errors)
         self.headers = headers
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle with every attribute (validation runs in another process and raises these)."""
+        return (_rebuild, (self.status, self.detail, self.title, self.errors, self.headers))
+
+
+def _rebuild(status: int, detail: str, title: str, errors: list[InvalidParam],
+             headers: dict[str, str] | None) -> ProblemError:
+    return ProblemError(status, detail, title=title, errors=errors, headers=headers)
+
 
 def from_cascalib(exc: CascalibError, status: int = 422) -> ProblemError:
     """A cascalib error (located by camera/file/frame/field) as a 4xx problem (413 for a

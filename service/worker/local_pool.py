@@ -24,6 +24,7 @@ from typing import Any
 from cascalib.workers import die_with_parent
 from service import store as st
 from service.core.config import Settings
+from service.core.proc import name_process
 from service.models import utcnow
 from service.store import Store
 
@@ -32,6 +33,8 @@ __all__ = ["LocalPool"]
 log = logging.getLogger(__name__)
 
 _PREFIX = "local:"
+#: Job processes run below the API and the upload validators, so polls stay fast under load.
+JOB_NICENESS = 10
 #: Imported once by the fork server (missing modules are skipped by multiprocessing).
 PRELOAD = ("service.worker.runner", "service.inputs", "cascalib.formats", "cascalib.pipeline")
 
@@ -49,6 +52,8 @@ def run_claimed_job(job_id: str, attempt: int, settings: Settings) -> None:
     from service.worker.runner import execute_claimed
 
     die_with_parent()
+    name_process("cascalib-job")
+    os.nice(JOB_NICENESS)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     store = Store(settings.sqlalchemy_url, settings.data_dir)
     try:

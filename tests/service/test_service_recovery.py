@@ -88,8 +88,16 @@ def _children(pid: int) -> list[int]:
     return pids
 
 
-def _job_processes(server_pid: int) -> list[int]:
-    """Job processes of the server: the children of its multiprocessing fork server."""
+def _comm(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
+
+
+def _job_processes(server_pid: int, name: str = "cascalib-job") -> list[int]:
+    """Job processes of the server (or upload validators, ``name="cascalib-valid"``): the
+    children of its multiprocessing fork server, by process name."""
     out = []
     for pid in _children(server_pid):
         try:
@@ -97,7 +105,7 @@ def _job_processes(server_pid: int) -> list[int]:
         except OSError:
             continue
         if b"forkserver" in cmd:
-            out += _children(pid)
+            out += [p for p in _children(pid) if _comm(p) == name]
     return out
 
 
