@@ -134,7 +134,8 @@ class CalibrationResult:
 def _calibration_path(outdir: Path, fmt: str) -> Path:
     return {"json": outdir / "calibration.json", "toml": outdir / "calibration.toml",
             "opencv": outdir / "calibration_opencv.yml", "colmap": outdir / "colmap",
-            "easymocap": outdir / "easymocap"}.get(fmt, outdir / f"calibration.{fmt}")
+            "easymocap": outdir / "easymocap", "caliscope": outdir / "camera_array.toml",
+            }.get(fmt, outdir / f"calibration.{fmt}")
 
 
 def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:

@@ -34,16 +34,18 @@ def output_format(path: Path, given: str | None) -> str:
         return given
     if path.name in ("intri.yml", "extri.yml"):
         return "easymocap"
+    if path.name == "camera_array.toml":
+        return "caliscope"
     fmt = _BY_SUFFIX.get(path.suffix.lower())
     if fmt is None:
         raise CalibrationFileError("cannot tell the output format from the name; pass --to "
-                                   "(json, toml, opencv, colmap, easymocap)", file=str(path),
-                                   field="--to")
+                                   "(json, toml, caliscope, opencv, colmap, easymocap)",
+                                   file=str(path), field="--to")
     return fmt
 
 
 def run(args: argparse.Namespace) -> int:
-    from cascalib.formats.calibration import load_calibration, save_calibration
+    from cascalib.formats.calibration import TIME_SIDECAR, load_calibration, save_calibration
 
     calib = load_calibration(args.input, format=args.from_format)
     fmt = output_format(args.output, args.to_format)
@@ -51,4 +53,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(calib)} cameras ({', '.join(calib.names)}) -> {fmt}:")
     for path in written:
         print(f"  {path}")
+    sidecars = [p for p in written if p.name == TIME_SIDECAR]
+    if sidecars:
+        print(f"warning: {fmt} has no place for frame rates, time offsets and the reference "
+              f"camera: they are in {sidecars[0]}, which cascalib reads back (other tools do not)")
     return 0

@@ -4,10 +4,12 @@
 format          files                                        read    write   keeps time/fps
 ==============  ===========================================  ======  ======  ==================
 ``json``        cascalib ``calibration.json`` (native)       yes     yes     yes (+ quality)
-``toml``        aniposelib / Pose2Sim / caliscope ``.toml``  yes     yes     yes (extra keys)
+``toml``        aniposelib / Pose2Sim ``.toml``              yes     yes     yes (extra keys)
+                (also caliscope's older ``config.toml``)
+``caliscope``   caliscope ``camera_array.toml``              yes     yes     yes (extra keys)
 ``opencv``      one OpenCV FileStorage ``.yml/.yaml/.xml``   yes     yes     yes
-``colmap``      folder: cameras.txt, images.txt, points3D    yes     yes     no
-``easymocap``   folder: intri.yml, extri.yml                 yes     yes     no
+``colmap``      folder: cameras.txt, images.txt, points3D    yes     yes     sidecar file
+``easymocap``   folder: intri.yml, extri.yml                 yes     yes     sidecar file
 ``qualisys``    Qualisys ``.qca.txt`` (XML)                  yes     no      no
 ==============  ===========================================  ======  ======  ==================
 
@@ -18,6 +20,7 @@ raises :class:`~cascalib.errors.CalibrationFileError` naming the file, camera an
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -26,27 +29,29 @@ from cascalib.calibration import Calibration
 from cascalib.errors import CalibrationFileError
 from cascalib.formats.calibration import (
     anipose_toml,
+    caliscope_toml,
     colmap_text,
     easymocap_yaml,
     native_json,
     opencv_yaml,
     qualisys_qca,
 )
+from cascalib.formats.calibration._time_sidecar import TIME_SIDECAR
 
-__all__ = ["FORMATS", "detect_format", "load_calibration", "save_calibration"]
+__all__ = ["FORMATS", "TIME_SIDECAR", "detect_format", "load_calibration", "save_calibration"]
 
 #: Format name -> module with ``read`` (and ``write`` unless read-only).
 FORMATS: dict[str, ModuleType] = {
     "json": native_json,
     "toml": anipose_toml,
+    "caliscope": caliscope_toml,
     "opencv": opencv_yaml,
     "colmap": colmap_text,
     "easymocap": easymocap_yaml,
     "qualisys": qualisys_qca,
 }
 _ALIASES = {"native": "json", "aniposelib": "toml", "anipose": "toml", "pose2sim": "toml",
-            "caliscope": "toml", "yaml": "opencv", "yml": "opencv", "xml": "opencv",
-            "qca": "qualisys"}
+            "yaml": "opencv", "yml": "opencv", "xml": "opencv", "qca": "qualisys"}
 
 
 def _canonical(fmt: str, *, file: str | None) -> str:
@@ -78,11 +83,22 @@ def detect_format(path: str | Path) -> str:
         return "easymocap"
     if name.endswith(".qca.txt") or name.endswith(".qca"):
         return "qualisys"
-    by_suffix = {".json": "json", ".toml": "toml", ".yml": "opencv", ".yaml": "opencv",
-                 ".xml": "opencv"}
+    if path.suffix.lower() == ".toml":
+        return _toml_layout(path)
+    by_suffix = {".json": "json", ".yml": "opencv", ".yaml": "opencv", ".xml": "opencv"}
     if path.suffix.lower() in by_suffix:
         return by_suffix[path.suffix.lower()]
     return _sniff(path)
+
+
+def _toml_layout(path: Path) -> str:
+    """``caliscope`` for a ``[cameras.<id>]`` layout, else ``toml`` (its reader reports errors)."""
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except (OSError, tomllib.TOMLDecodeError):
+        return "toml"
+    return "caliscope" if caliscope_toml.is_camera_array(data) else "toml"
 
 
 def _sniff(path: Path) -> str:
@@ -96,6 +112,8 @@ def _sniff(path: Path) -> str:
         return "qualisys"
     if head.startswith("%YAML") or head.startswith("<?xml"):
         return "opencv"
+    if "[cameras." in head:
+        return "caliscope"
     if "[cam" in head or "matrix" in head:
         return "toml"
     raise CalibrationFileError("cannot tell the calibration format from the name or content; "

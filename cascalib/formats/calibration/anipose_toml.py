@@ -1,4 +1,7 @@
-"""aniposelib / Pose2Sim / caliscope TOML calibration files.
+"""aniposelib / Pose2Sim TOML calibration files, and caliscope's older ``config.toml``.
+
+caliscope's current ``camera_array.toml`` (``[cameras.<id>]`` tables) is
+:mod:`~cascalib.formats.calibration.caliscope_toml`.
 
 One table per camera::
 
@@ -41,7 +44,7 @@ from cascalib.errors import CalibrationFileError
 from cascalib.formats.calibration._validate import build_camera, matrix, require
 from cascalib.geometry import matrix_to_rodrigues, rodrigues_to_matrix, rotation_angle_deg
 
-__all__ = ["from_dict", "read", "to_dict", "write"]
+__all__ = ["caliscope_world", "from_dict", "read", "to_dict", "write"]
 
 logger = logging.getLogger(__name__)
 
@@ -79,8 +82,10 @@ def from_dict(data: dict[str, Any], *, file: str | None = None) -> Calibration:
     tables = [(key, value) for key, value in data.items()
               if isinstance(value, dict) and "matrix" in value]
     if not tables:
-        raise CalibrationFileError("no camera tables (a table with 'matrix') found", file=file,
-                                   field="matrix")
+        hint = (": a [cameras.<id>] table is caliscope's camera_array.toml, read it as format "
+                "'caliscope'" if isinstance(data.get("cameras"), dict) else "")
+        raise CalibrationFileError(f"no camera tables (a table with 'matrix') found{hint}",
+                                   file=file, field="matrix")
     caliscope = "charuco" in data or any("port" in v for _, v in tables)
     cameras = []
     for key, entry in tables:
@@ -89,7 +94,7 @@ def from_dict(data: dict[str, Any], *, file: str | None = None) -> Calibration:
         caliscope = caliscope or was_matrix
         cameras.append(camera)
     meta = data.get("metadata", {}) if isinstance(data.get("metadata"), dict) else {}
-    world = str(meta.get("world", _camera_world(cameras) if caliscope else UNKNOWN_WORLD))
+    world = str(meta.get("world", caliscope_world(cameras) if caliscope else UNKNOWN_WORLD))
     try:
         return Calibration(cameras, reference_camera=meta.get("reference_camera"), world=world)
     except CalibrationFileError as exc:
@@ -118,7 +123,7 @@ def _camera(name: str, entry: dict[str, Any], *, file: str | None) -> tuple[Came
     return camera, is_matrix
 
 
-def _camera_world(cameras: list[Camera]) -> str:
+def caliscope_world(cameras: list[Camera]) -> str:
     """caliscope puts the world at one camera: name the camera whose pose is the identity."""
     for cam in cameras:
         if rotation_angle_deg(cam.R) < 1.0 and np.linalg.norm(cam.t) < 0.01:
@@ -127,7 +132,7 @@ def _camera_world(cameras: list[Camera]) -> str:
 
 
 def read(path: str | Path) -> Calibration:
-    """Read an aniposelib / Pose2Sim / caliscope TOML file."""
+    """Read an aniposelib / Pose2Sim (or older caliscope) TOML file."""
     path = Path(path)
     try:
         with path.open("rb") as fh:

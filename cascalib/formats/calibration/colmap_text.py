@@ -15,8 +15,10 @@ Pixel convention: COLMAP puts the centre of the top-left pixel at (0.5, 0.5), Op
 at (0, 0); the principal point is shifted by 0.5 px each way on write and back on read.
 
 The format cannot hold frame rates, time offsets/rates, the reference camera, the world
-description, ``quality`` or a skewed K (refused on write). A read gives ``fps=None``, offset 0,
-rate 1, the first image as reference camera, and the world ``"COLMAP model frame"``.
+description, ``quality`` or a skewed K (refused on write). The clocks and the reference camera go
+to ``cascalib_time.json`` beside the model (:mod:`._time_sidecar`) and :func:`read` takes them
+back; without it a read gives ``fps=None``, offset 0, rate 1 and the first image as reference
+camera (with a warning). The world is always ``"COLMAP model frame"``.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.errors import CalibrationFileError
+from cascalib.formats.calibration._time_sidecar import apply_time_sidecar, write_time_sidecar
 from cascalib.formats.calibration._validate import build_camera, matrix
 
 __all__ = ["from_dict", "read", "to_dict", "write"]
@@ -169,18 +172,19 @@ def _parse_images(path: Path) -> list[dict[str, Any]]:
 
 
 def read(path: str | Path) -> Calibration:
-    """Read a COLMAP text model from a folder (or given its cameras.txt or images.txt)."""
+    """Read a COLMAP text model from a folder (or given its cameras.txt or images.txt), with
+    the clocks of ``cascalib_time.json`` beside it."""
     folder = Path(path)
     if folder.is_file():
         folder = folder.parent
     data = {"cameras": _parse_cameras(folder / "cameras.txt"),
             "images": _parse_images(folder / "images.txt")}
-    return from_dict(data, file=str(folder))
+    return apply_time_sidecar(from_dict(data, file=str(folder)), folder, fmt="COLMAP")
 
 
 def write(calib: Calibration, path: str | Path) -> list[Path]:
-    """Write ``cameras.txt``, ``images.txt`` and an empty ``points3D.txt`` into the folder
-    ``path``; returns the three files."""
+    """Write ``cameras.txt``, ``images.txt``, an empty ``points3D.txt`` and the clocks'
+    ``cascalib_time.json`` into the folder ``path``; returns the four files."""
     folder = Path(path)
     data = to_dict(calib)
     folder.mkdir(parents=True, exist_ok=True)
@@ -205,4 +209,4 @@ def write(calib: Calibration, path: str | Path) -> list[Path]:
                         ("points3D.txt", pts_lines)):
         (folder / name).write_text("\n".join(lines) + "\n", encoding="utf-8")
         out.append(folder / name)
-    return out
+    return [*out, write_time_sidecar(calib, folder)]

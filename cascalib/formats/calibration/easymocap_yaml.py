@@ -6,8 +6,9 @@ principal point, with a warning). ``extri.yml``: ``names``, then per camera ``R_
 Rodrigues), ``Rot_<cam>`` (3x3) and ``T_<cam>`` (3x1, metres), cam_from_world.
 
 The format cannot hold frame rates, time offsets/rates, the reference camera, the world
-description or ``quality``: they are not written and a read gives ``fps=None``, offset 0, rate 1
-and the first camera as reference.
+description or ``quality``. The clocks and the reference camera go to ``cascalib_time.json`` in
+the same folder (:mod:`._time_sidecar`) and :func:`read` takes them back; without it a read gives
+``fps=None``, offset 0, rate 1 and the first camera as reference (with a warning).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 from cascalib.calibration import Calibration
 from cascalib.errors import CalibrationFileError
 from cascalib.formats.calibration._filestorage import read_nodes, write_nodes
+from cascalib.formats.calibration._time_sidecar import apply_time_sidecar, write_time_sidecar
 from cascalib.formats.calibration._validate import check_node_name
 from cascalib.formats.calibration.opencv_yaml import camera_from_nodes, camera_names, camera_nodes
 
@@ -57,7 +59,8 @@ def _folder(path: str | Path) -> Path:
 
 
 def read(path: str | Path) -> Calibration:
-    """Read ``intri.yml`` and ``extri.yml`` from a folder (or given one of the two files)."""
+    """Read ``intri.yml`` and ``extri.yml`` from a folder (or given one of the two files), with
+    the clocks of ``cascalib_time.json`` beside them."""
     folder = _folder(path)
     for name in (INTRI, EXTRI):
         if not (folder / name).is_file():
@@ -65,13 +68,15 @@ def read(path: str | Path) -> Calibration:
                                        f"{'extri.yml' if name == INTRI else 'intri.yml'}",
                                        file=str(folder / name))
     data = {"intri": read_nodes(folder / INTRI), "extri": read_nodes(folder / EXTRI)}
-    return from_dict(data, file=str(folder))
+    return apply_time_sidecar(from_dict(data, file=str(folder)), folder, fmt="EasyMocap")
 
 
 def write(calib: Calibration, path: str | Path) -> list[Path]:
-    """Write ``intri.yml`` and ``extri.yml`` into the folder ``path``; returns both files."""
+    """Write ``intri.yml``, ``extri.yml`` and the clocks' ``cascalib_time.json`` into the folder
+    ``path``; returns the three files."""
     folder = _folder(path)
     for name in calib.names:
         check_node_name(name, file=str(folder), fmt="EasyMocap")
     data = to_dict(calib)
-    return [write_nodes(folder / INTRI, data["intri"]), write_nodes(folder / EXTRI, data["extri"])]
+    return [write_nodes(folder / INTRI, data["intri"]), write_nodes(folder / EXTRI, data["extri"]),
+            write_time_sidecar(calib, folder)]
