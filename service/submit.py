@@ -7,7 +7,7 @@ import uuid
 
 from sqlalchemy.exc import IntegrityError
 from starlette.concurrency import run_in_threadpool
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 
 from api_schemas import InvalidParam, JobLinks
 from service import store as st
@@ -77,6 +77,10 @@ async def submit_job(request: Request, state: AppState, owner: str,
     state.pending += 1
     try:
         return await _receive_and_commit(request, state, owner, idempotency_key)
+    except ClientDisconnect:
+        # Nobody to answer; 499 (nginx's "client closed request") is what the metrics count.
+        log.info("client disconnected during its upload: nothing stored")
+        raise ProblemError(499, "the client closed the connection during the upload") from None
     finally:
         state.pending -= 1
 

@@ -69,6 +69,10 @@ class Settings(BaseSettings):
         description="A running job without heartbeat for this long is presumed dead.",
     )
     max_upload_bytes: int = Field(default=512 * 2**20, ge=1024, description="Whole request.")
+    body_timeout_seconds: float = Field(
+        default=60.0, gt=0,
+        description="A request body that stops arriving for this long is answered 408.",
+    )
     max_files: int = Field(default=64, ge=1, description="Files (cameras) per job.")
     max_unzipped_bytes: int = Field(
         default=2 * 2**30, ge=1024, description="Total size of one zip's extracted members."

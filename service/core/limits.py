@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -9,7 +10,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from api_schemas import PROBLEM_MEDIA_TYPE
 from service.core.problems import ProblemError
 
-__all__ = ["BodyLimitMiddleware", "BodyTooLarge"]
+__all__ = ["BodyLimitMiddleware", "BodyTimeout", "BodyTooLarge"]
 
 
 class BodyTooLarge(ProblemError):
@@ -28,12 +29,23 @@ def _too_large(exc: BaseException) -> bool:
     return _too_large(exc.__cause__) if exc.__cause__ is not None else False
 
 
-class BodyLimitMiddleware:
-    """Refuse bodies over ``max_bytes``: at once by Content-Length, else while reading."""
+class BodyTimeout(ProblemError):
+    """No part of the request body arrived for too long (408), e.g. a Content-Length larger
+    than the body sent."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+    def __init__(self, seconds: float) -> None:
+        super().__init__(408, f"the request body stopped arriving ({seconds:g} s without data)",
+                         title="Request timeout", headers={"Connection": "close"})
+
+
+class BodyLimitMiddleware:
+    """Refuse bodies over ``max_bytes``: at once by Content-Length, else while reading; and
+    bodies that stall for ``timeout`` seconds before their end (408)."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int, timeout: float = 60.0) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.timeout = timeout
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -45,10 +57,17 @@ class BodyLimitMiddleware:
             await self._refuse(scope, send)
             return
         seen = 0
+        complete = False
 
         async def limited() -> Message:
-            nonlocal seen
-            message = await receive()
+            nonlocal seen, complete
+            if complete:  # after the body: waits for a disconnect, however long
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.timeout)
+            except TimeoutError:
+                raise BodyTimeout(self.timeout) from None
+            complete = not message.get("more_body", False)
             seen += len(message.get("body", b""))
             if seen > self.max_bytes:
                 raise BodyTooLarge(self.max_bytes)
