@@ -10,7 +10,7 @@ from pathlib import Path
 from cascalib.cli.progress import StageProgress
 
 EXIT_REJECTED = 1
-FORMATS = ("json", "toml", "opencv", "colmap", "easymocap")
+FORMATS = ("json", "toml", "caliscope", "opencv", "colmap", "easymocap")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -74,6 +74,29 @@ def build_config(args: argparse.Namespace):  # noqa: ANN201 - CalibrationConfig
         raise InputError(f"invalid configuration: {exc}", file=str(args.config or "")) from None
 
 
+def file_stamps(folder: Path) -> dict[Path, int]:
+    """Modification time (ns) of every file under ``folder`` (empty if it does not exist)."""
+    return {p: p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+def written_since(folder: Path, before: dict[Path, int]) -> list[Path]:
+    """Files under ``folder`` that are new or changed since the :func:`file_stamps` ``before``."""
+    now = file_stamps(folder)
+    return sorted(p for p, t in now.items() if before.get(p) != t)
+
+
+def files_line(folder: Path, files: list[Path]) -> str:
+    """``a.json, b.toml, colmap/ (cameras.txt, images.txt), poses/ (poses.npz)``: files directly
+    in ``folder`` first, then one group per subfolder."""
+    top = [p.name for p in files if p.parent == folder]
+    groups: dict[str, list[str]] = {}
+    for p in files:
+        if p.parent != folder:
+            rel = p.relative_to(folder)
+            groups.setdefault(rel.parts[0], []).append(str(Path(*rel.parts[1:])))
+    return ", ".join(top + [f"{d}/ ({', '.join(names)})" for d, names in groups.items()])
+
+
 def run(args: argparse.Namespace) -> int:
     from cascalib.errors import InputError
     from cascalib.pipeline import calibrate
@@ -91,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     with StageProgress(quiet=quiet) as progress:
         result = calibrate(tracks, config, progress=progress)
         progress("save", 0.0)
+        before = file_stamps(args.output)
         written = result.save(args.output, formats=formats, report=not args.no_report)
         progress("save", 1.0)
     summary = result.summary() | {"outputs": {k: str(v) for k, v in written.items()}}
@@ -102,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{cam['name']:>10s}  f={cam['focal_px']:8.1f} px  "
                   f"C=({c[0]:6.2f}, {c[1]:6.2f}, {c[2]:5.2f}) m  offset={cam['time_offset']:8.2f}"
                   f"  rate={cam['time_rate']:.5f}  {cam['verdict']}: {cam['reason']}")
-        print(f"written to {args.output}/ (calibration.json, report.html, poses/)")
+        print(f"written to {args.output}/: "
+              f"{files_line(args.output, written_since(args.output, before))}")
     if not result.accepted:
         failed = [c["name"] for c in summary["cameras"] if c["verdict"] == "failed"]
         print(f"cascalib calibrate: calibration rejected by the quality check: camera(s) "
