@@ -447,7 +447,7 @@ def match_persons(estimated: NDArray[np.float64], truth: NDArray[np.float64],
     per_person = np.nan_to_num(nanmedian_last(d), nan=np.inf)  # (T, P, Pt); empty slots: inf
     person = np.argmin(per_person, axis=-1)
     errors = np.take_along_axis(d, person[..., None, None], axis=2)[:, :, 0]
-    present = np.isfinite(est[..., 0]).any(-1)
+    present = np.asarray(np.isfinite(est[..., 0]).any(-1))
     return errors, person, present
 
 

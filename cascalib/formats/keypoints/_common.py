@@ -102,7 +102,7 @@ def check_dense(n_frames: int, n_persons: int, n_joints: int, *, n_detections: i
         More than ``_SLOTS_PER_DETECTION`` empty slots per detection (frame ids far apart).
     """
     lim = _LIMITS.get()
-    where = {"file": str(file), "camera": camera}
+    where: dict[str, Any] = {"file": str(file), "camera": camera}
     n_bytes = n_frames * n_persons * n_joints * 3 * 8
     for value, limit, what, field in (
             (n_frames, lim.max_frames, f"frame ids span {n_frames} frames", "frames"),
@@ -162,8 +162,8 @@ def resolve_image_size(from_file: Any, given: SizeArg, *, camera: str, file: Pat
     caller_size = None if caller is None else parse_image_size(caller, camera=camera)
     if from_file is None:
         return caller_size
-    where = {"file": None if file is None else str(file), "camera": camera,
-             "field": "image_size"}
+    where: dict[str, Any] = {"file": None if file is None else str(file), "camera": camera,
+                             "field": "image_size"}
     try:
         size = parse_image_size(from_file, camera=camera)
     except InputError as exc:
