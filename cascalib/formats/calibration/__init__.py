@@ -20,7 +20,6 @@ raises :class:`~cascalib.errors.CalibrationFileError` naming the file, camera an
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -94,9 +93,8 @@ def detect_format(path: str | Path) -> str:
 def _toml_layout(path: Path) -> str:
     """``caliscope`` for a ``[cameras.<id>]`` layout, else ``toml`` (its reader reports errors)."""
     try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except (OSError, tomllib.TOMLDecodeError):
+        data = anipose_toml.load_toml(path)
+    except (OSError, CalibrationFileError):
         return "toml"
     return "caliscope" if caliscope_toml.is_camera_array(data) else "toml"
 

@@ -44,7 +44,7 @@ from cascalib.errors import CalibrationFileError
 from cascalib.formats.calibration._validate import build_camera, matrix, require
 from cascalib.geometry import matrix_to_rodrigues, rodrigues_to_matrix, rotation_angle_deg
 
-__all__ = ["caliscope_world", "from_dict", "read", "to_dict", "write"]
+__all__ = ["caliscope_world", "dump_toml", "from_dict", "load_toml", "read", "to_dict", "write"]
 
 logger = logging.getLogger(__name__)
 
@@ -131,23 +131,31 @@ def caliscope_world(cameras: list[Camera]) -> str:
     return "caliscope world (a camera or board frame, not the ground)"
 
 
+def load_toml(path: Path) -> dict[str, Any]:
+    """The parsed TOML document, or a CalibrationFileError naming the file."""
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationFileError(f"not valid TOML: {exc}", file=str(path)) from None
+
+
+def dump_toml(data: dict[str, Any], path: Path) -> list[Path]:
+    """Write ``data`` as TOML to ``path`` (parent folders made); returns ``[path]``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("wb") as fh:
+        tomli_w.dump(data, fh)
+    return [path]
+
+
 def read(path: str | Path) -> Calibration:
     """Read an aniposelib / Pose2Sim (or older caliscope) TOML file."""
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationFileError(f"not valid TOML: {exc}", file=str(path)) from None
-    calib = from_dict(data, file=str(path))
+    calib = from_dict(load_toml(path), file=str(path))
     logger.debug("read %d cameras from %s (world: %s)", len(calib), path, calib.world)
     return calib
 
 
 def write(calib: Calibration, path: str | Path) -> list[Path]:
     """Write ``calib`` as TOML to ``path``; returns the files written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as fh:
-        tomli_w.dump(to_dict(calib), fh)
-    return [path]
+    return dump_toml(to_dict(calib), Path(path))

@@ -27,12 +27,10 @@ table (caliscope's older ``config.toml`` with ``[cam_N]`` tables and 3x3 rotatio
 from __future__ import annotations
 
 import re
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomli_w
 from numpy.typing import NDArray
 
 from cascalib.calibration import Calibration
@@ -147,18 +145,9 @@ def _rotation(value: Any, *, file: str | None, camera: str) -> NDArray[np.float6
 def read(path: str | Path) -> Calibration:
     """Read a caliscope ``camera_array.toml`` (or older ``config.toml``)."""
     path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationFileError(f"not valid TOML: {exc}", file=str(path)) from None
-    return from_dict(data, file=str(path))
+    return from_dict(anipose_toml.load_toml(path), file=str(path))
 
 
 def write(calib: Calibration, path: str | Path) -> list[Path]:
     """Write ``calib`` in caliscope's ``camera_array.toml`` layout; returns the files written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as fh:
-        tomli_w.dump(to_dict(calib), fh)
-    return [path]
+    return anipose_toml.dump_toml(to_dict(calib), Path(path))
