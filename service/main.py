@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
@@ -22,7 +23,7 @@ from service.api.routes import health, jobs
 from service.core.config import Settings
 from service.core.limits import BodyLimitMiddleware
 from service.core.metrics import Metrics, MetricsMiddleware
-from service.core.problems import install_handlers
+from service.core.problems import install_handlers, problem_openapi
 from service.store import Store
 from service.validation import Validator
 
@@ -86,6 +87,18 @@ def _warm_up() -> None:
             log.warning("%s not importable: uploads cannot be validated fully", name)
 
 
+def _document_problems(app: FastAPI) -> None:
+    """Have ``/openapi.json`` document errors as problem+json (built once, on first use)."""
+    plain = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = problem_openapi(plain())
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The service application for ``settings`` (read from the environment when None)."""
     settings = settings or Settings()
@@ -114,6 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="cascalib calibration service", version=__version__,
                   description=DESCRIPTION, lifespan=lifespan)
     install_handlers(app)
+    _document_problems(app)
 
     app.add_middleware(MetricsMiddleware)
     if settings.cors_origins:

@@ -83,6 +83,29 @@ def _validation_params(errors: Sequence[Any]) -> list[InvalidParam]:
     return out
 
 
+def allowed_methods(request: Request) -> list[str]:
+    """The methods the API documents at this path (Starlette's 405 names only the first route
+    that matched the path, e.g. GET and not DELETE for ``/v1/jobs/{id}``)."""
+    from starlette.routing import compile_path
+
+    for template, operations in request.app.openapi().get("paths", {}).items():
+        if compile_path(template)[0].match(request.url.path):
+            return sorted(m.upper() for m in operations)
+    return []
+
+
+def problem_openapi(schema: dict[str, Any]) -> dict[str, Any]:
+    """Document every error answer as what it is: ``application/problem+json`` with the
+    Problem schema (FastAPI lists a model's schema under ``application/json``)."""
+    ref = {"$ref": "#/components/schemas/Problem"}
+    for operations in schema.get("paths", {}).values():
+        for operation in operations.values():
+            for status, answer in operation.get("responses", {}).items():
+                if str(status)[0] in "45":
+                    answer["content"] = {PROBLEM_MEDIA_TYPE: {"schema": ref}}
+    return schema
+
+
 def install_handlers(app: FastAPI) -> None:
     """Register the handlers that turn every exception into a problem body."""
 
@@ -103,8 +126,10 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        return problem_response(request, exc.status_code, str(exc.detail),
-                                headers=getattr(exc, "headers", None))
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:
+            headers = {**(headers or {}), "Allow": ", ".join(allowed_methods(request))}
+        return problem_response(request, exc.status_code, str(exc.detail), headers=headers)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -297,6 +297,27 @@ def test_full_life_cycle(kind: str, tmp_path: Path) -> None:
             pg.drop()
 
 
+def assert_documented(client: httpx.Client, template: str, r: httpx.Response) -> None:
+    """The answer's status and media type are the ones /openapi.json gives for the path."""
+    spec = client.get("/openapi.json").json()
+    answers = spec["paths"][template][r.request.method.lower()]["responses"]
+    assert str(r.status_code) in answers, (template, r.status_code, list(answers))
+    media = r.headers["content-type"].split(";")[0]
+    assert media in answers[str(r.status_code)].get("content", {}), (template, media)
+
+
+def test_downloads_of_an_unfinished_job_answer_as_documented(client: httpx.Client) -> None:
+    job_id = submit(client).json()["id"]
+    wait_finished(client, job_id)
+    for what in ("result", "report", "poses"):
+        r = client.get(f"/v1/jobs/{job_id}/{what}")
+        assert r.status_code in (404, 409), r.text  # a failed job, or an output missing
+        assert_documented(client, f"/v1/jobs/{{job_id}}/{what}", r)
+    r = client.get("/v1/jobs/0123/result")
+    assert r.status_code == 404
+    assert_documented(client, "/v1/jobs/{job_id}/result", r)
+
+
 def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> None:
     files = sim_files(tmp_path)
     r = submit(client, files, {"seed": 0})
@@ -316,6 +337,7 @@ def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> 
             assert "produced no" in r.json()["detail"] and ": " in r.json()["detail"], r.text
             continue
         assert r.status_code == 200 and r.content, fmt
+        assert_documented(client, "/v1/jobs/{job_id}/result", r)
         exported += 1
         if fmt in ("colmap", "easymocap"):
             assert zipfile.ZipFile(io.BytesIO(r.content)).namelist()
@@ -324,7 +346,10 @@ def _life_cycle(client: httpx.Client, tmp_path: Path, load_calibration: Any) -> 
     assert report.status_code == 200 and "<html" in report.text.lower()
     poses = client.get(f"/v1/jobs/{job['id']}/poses")
     assert poses.status_code == 200 and json.loads(poses.content)
-    assert client.get(f"/v1/jobs/{job['id']}/poses", params={"format": "npz"}).content[:2] == b"PK"
+    npz = client.get(f"/v1/jobs/{job['id']}/poses", params={"format": "npz"})
+    assert npz.content[:2] == b"PK"
+    for what, r in (("result", result), ("report", report), ("poses", poses), ("poses", npz)):
+        assert_documented(client, f"/v1/jobs/{{job_id}}/{what}", r)
     assert client.delete(f"/v1/jobs/{job['id']}").status_code == 204
 
 

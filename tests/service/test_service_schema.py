@@ -19,6 +19,20 @@ from service_helpers import Deployment, build_deployment, next_token  # noqa: E4
 from service.core.config import Settings  # noqa: E402
 from service.main import create_app  # noqa: E402
 
+from schemathesis.checks import not_a_server_error  # noqa: E402
+from schemathesis.specs.openapi.checks import (  # noqa: E402
+    allow_header_conformance,
+    content_type_conformance,
+    negative_data_rejection,
+    response_headers_conformance,
+    response_schema_conformance,
+    status_code_conformance,
+)
+
+#: Response-conformance checks: a client generated from the schema must work with the server.
+CONFORMANCE = [not_a_server_error, status_code_conformance, content_type_conformance,
+               response_schema_conformance, response_headers_conformance,
+               allow_header_conformance, negative_data_rejection]
 OPENAPI = create_app(Settings(api_tokens=["unused"])).openapi()
 schema = schemathesis.openapi.from_dict(OPENAPI)
 TOKEN = next_token()
@@ -41,9 +55,12 @@ def fuzzed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Deployment]:
 @settings(max_examples=12, deadline=None, derandomize=True,
           suppress_health_check=list(HealthCheck))
 def test_no_server_error(case, fuzzed: Deployment) -> None:  # type: ignore[no-untyped-def]
+    """No 5xx, and every answer is what the document says: status code, media type, body
+    schema, headers, and an ``Allow`` header listing the documented methods."""
     response = case.call(base_url=fuzzed.url, headers={"Authorization": f"Bearer {TOKEN}"},
                          timeout=30)
     assert response.status_code < 500, (case.method, case.path, response.text)
+    case.validate_response(response, checks=CONFORMANCE)
     assert "Traceback" not in response.text
     if response.status_code >= 400:
         ctype = response.headers.get("content-type") or [""]

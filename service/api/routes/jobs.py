@@ -36,12 +36,14 @@ _P = "application/problem+json"
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": Problem, "description": text, "content": {_P: {}}}
     for code, text in [(401, "Missing or invalid token"), (404, "No such job (for this token)"),
-                       (422, "Invalid input")]}
+                       (422, "Invalid input"),
+                       (503, "The job store is unavailable for now (see Retry-After)")]}
 
 _UPLOAD_DOC: dict[str, Any] = {"requestBody": {"required": True, "content": {
     "multipart/form-data": {
         "schema": {"type": "object", "required": ["files"], "properties": {
             "files": {"type": "array", "items": {"type": "string", "format": "binary"},
+                      "minItems": 1,
                       "description": "One file per camera; the file name (without extension) "
                       "is the camera name. Any supported keypoint format; a folder of per-frame "
                       "JSON files as a zip."},
@@ -70,7 +72,11 @@ def _job(session: SessionDep, owner: str, job_id: str) -> Job:
 
 @router.post("", status_code=202, response_model=JobCreated, openapi_extra=_UPLOAD_DOC,
              responses={**_ERRORS, 413: {"model": Problem, "description": "Upload too large"},
-                        415: {"model": Problem, "description": "Not multipart/form-data"}})
+                        415: {"model": Problem, "description": "Not multipart/form-data"},
+                        400: {"model": Problem, "description": "Malformed multipart body"},
+                        408: {"model": Problem, "description": "The body stopped arriving"},
+                        503: {"model": Problem, "description": "Too many submissions in "
+                              "progress, or the job store unavailable (see Retry-After)"}})
 async def create_job(request: Request, response: Response, state: StateDep, owner: TokenDep,
                      idempotency_key: Annotated[str | None, Header(
                          description="Retry-safe submission: the same key returns the same "
@@ -153,11 +159,33 @@ def _serve(state: StateDep, job: Job, roles: tuple[str, ...], media_type: str,
 FOLDER_FORMATS = ("colmap", "easymocap")
 _MEDIA = {"json": "application/json", "toml": "application/toml", "opencv": "application/yaml",
           "colmap": "application/zip", "easymocap": "application/zip"}
-_CONFLICT: dict[int | str, dict[str, Any]] = {
-    409: {"model": Problem, "description": "Job not succeeded (yet)"}}
+_POSES_MEDIA = {"json": "application/json", "npz": "application/octet-stream"}
+_BINARY = {"type": "string", "format": "binary"}
 
 
-@router.get("/{job_id}/result", responses={**_ERRORS, **_CONFLICT})
+def _downloads(media: dict[str, dict[str, Any]], what: str) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI answers of a download: 200 in each media type, 404 and 409 as problems."""
+    return {**_ERRORS,
+            200: {"description": what, "content": media},
+            404: {"model": Problem, "content": {_P: {}},
+                  "description": "No such job (for this token), or the job produced no such "
+                  "file (the reason is given)"},
+            409: {"model": Problem, "content": {_P: {}},
+                  "description": "The job has not succeeded (yet)"}}
+
+
+_RESULT_DOC = _downloads({
+    "application/json": {"schema": {"type": "object"}},
+    "application/toml": {"schema": {"type": "string"}},
+    "application/yaml": {"schema": {"type": "string"}},
+    "application/zip": {"schema": _BINARY}}, "The calibration in the format asked for")
+_REPORT_DOC = _downloads({"text/html": {"schema": {"type": "string"}}}, "The HTML report")
+_POSES_DOC = _downloads({"application/json": {"schema": {"type": "object"}},
+                         "application/octet-stream": {"schema": _BINARY}},
+                        "3D poses: JSON, or NumPy .npz arrays")
+
+
+@router.get("/{job_id}/result", response_class=Response, responses=_RESULT_DOC)
 def read_result(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
                 format: Annotated[Literal["json", "toml", "opencv", "colmap", "easymocap"],
                                   Query(description="Calibration file format (colmap and "
@@ -169,21 +197,20 @@ def read_result(job_id: JobId, session: SessionDep, owner: TokenDep, state: Stat
                   _MEDIA[format], f"{format} calibration")
 
 
-@router.get("/{job_id}/report", responses={**_ERRORS, **_CONFLICT})
+@router.get("/{job_id}/report", response_class=Response, responses=_REPORT_DOC)
 def read_report(job_id: JobId, session: SessionDep, owner: TokenDep,
                 state: StateDep) -> Response:
     """The HTML report of the calibration."""
     return _serve(state, _job(session, owner, job_id), ("report",), "text/html", "report")
 
 
-@router.get("/{job_id}/poses", responses={**_ERRORS, **_CONFLICT})
+@router.get("/{job_id}/poses", response_class=Response, responses=_POSES_DOC)
 def read_poses(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
                format: Annotated[Literal["json", "npz"], Query(
                    description="JSON, or NumPy .npz arrays.")] = "json") -> Response:
     """The 3D poses of the people (per reference frame, person and joint)."""
-    media = "application/json" if format == "json" else "application/octet-stream"
-    return _serve(state, _job(session, owner, job_id), (f"poses:poses.{format}",), media,
-                  "poses")
+    return _serve(state, _job(session, owner, job_id), (f"poses:poses.{format}",),
+                  _POSES_MEDIA[format], "poses")
 
 
 @router.delete("/{job_id}", responses={**_ERRORS, 200: {"model": JobPublic},
