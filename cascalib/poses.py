@@ -105,7 +105,7 @@ class Poses3D:
             written.append(self._write_npz(outdir / "poses.npz"))
         if "json" in formats:
             written.append(write_json(self, outdir / "poses.json"))
-        seen = np.isfinite(self.joints[..., 0]).any(axis=(0, 1))  # joints ever reconstructed
+        seen = np.asarray(np.isfinite(self.joints[..., 0]).any(axis=(0, 1)))  # joints ever seen
         names = [n for n, s in zip(CANONICAL_JOINTS, seen, strict=True) if s]
         for pid, (t, p) in persons.items():
             joints = self.joints[t, p][:, seen]
@@ -124,7 +124,7 @@ class Poses3D:
         np.savez(path, joints=self.joints, reference_frames=self.reference_frames,
                  fps=self.fps, person_ids=self.person_ids, linked_person_ids=self.linked_ids,
                  joint_names=np.array(CANONICAL_JOINTS),
-                 **({} if self.residuals is None else {"residuals": self.residuals}))
+                 **({} if self.residuals is None else {"residuals": self.residuals}))  # type: ignore[arg-type]
         return path
 
 
@@ -134,18 +134,18 @@ def write_json(poses: Poses3D, path: Path) -> Path:
 
     Written as one formatted string (numbers with 5 decimals): building the nested lists
     value by value took seconds for a long recording."""
-    seen = np.isfinite(poses.joints[..., 0]).any(-1)  # (T, P)
+    seen = np.asarray(np.isfinite(poses.joints[..., 0]).any(-1))  # (T, P)
     linked = poses.linked_ids if poses.linked_ids is not None else np.full(seen.shape, -1)
     joint = "[%.5f,%.5f,%.5f]"
     person = '{"id":%d,"person":%d,"joints":[' + ",".join([joint] * len(CANONICAL_JOINTS)) + "]}"
     frames = []
     for t, f in enumerate(poses.reference_frames.tolist()):
         p = np.flatnonzero(seen[t])
-        vals = np.column_stack([poses.person_ids[t, p], linked[t, p],
-                                poses.joints[t, p].reshape(len(p), 3 * len(CANONICAL_JOINTS))]).ravel().tolist()
+        vals = np.column_stack([poses.person_ids[t, p], linked[t, p], poses.joints[t, p].reshape(
+            len(p), 3 * len(CANONICAL_JOINTS))]).ravel().tolist()
         frames.append(f'{{"reference_frame":{f!r},"persons":['
                       + ",".join([person] * len(p)) % tuple(vals) + "]}")
-    head = ('{"schema":"cascalib/poses@1","units":"m","world":"z-up, ground z=0","fps":%r,'
+    head = ('{"schema":"cascalib/poses@1","units":"m","world":"z-up, ground z=0","fps":%r,'  # noqa: UP031
             '"joint_names":[%s],"frames":[' % (float(poses.fps),
                                                ",".join(f'"{n}"' for n in CANONICAL_JOINTS)))
     path.write_text((head + ",".join(frames) + "]}").replace("nan", "null"))

@@ -25,7 +25,6 @@ from api_schemas import InvalidParam, JobOptions
 from cascalib.errors import CascalibError
 from service.core.config import Settings
 from service.core.problems import ProblemError, from_cascalib
-from service.multipart import FormParts, parse_multipart
 from service.inputs import (
     build_config,
     check_session,
@@ -34,6 +33,7 @@ from service.inputs import (
     safe_extract,
     zip_limits,
 )
+from service.multipart import FormParts, parse_multipart
 from service.store import StoredFile
 
 __all__ = ["Submission", "receive_submission", "validate_submission", "FILES_FIELD",
