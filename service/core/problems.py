@@ -25,7 +25,8 @@ __all__ = ["ProblemError", "install_handlers", "problem_response", "from_cascali
 log = logging.getLogger(__name__)
 
 _TITLES = {400: "Bad request", 401: "Unauthorized", 404: "Not found", 405: "Method not allowed",
-           408: "Request timeout", 409: "Conflict", 413: "Payload too large", 415: "Unsupported media type",
+           408: "Request timeout", 409: "Conflict", 413: "Payload too large",
+           415: "Unsupported media type",
            422: "Invalid input", 499: "Client closed request", 500: "Internal error",
            503: "Service unavailable"}
 
