@@ -5,7 +5,8 @@ where two people pass close (:func:`cascalib.stages.person_size.split_by_size`).
 are chained into persons by a minimum-cost path cover (Hungarian assignment of each piece's end
 to the start of a later piece, or to nothing): the cost of a link is how far the end, carried on
 at its walking velocity, lands from the start (the tolerance growing with the gap), plus how
-much the two pieces' body sizes differ. Pieces that overlap in time are never linked. Rounds
+much the two pieces' body sizes differ. Pieces that overlap in time are not linked (but for a
+fraction of a second where a cut track goes on in a new one). Rounds
 with longer gaps then link the chains, whose sizes and velocities are better known.
 
 Axes as in :mod:`cascalib.poses`: ``joints[t, p, j, c]``, world metres, z up.
@@ -31,6 +32,9 @@ GAP_ROUNDS_S = (0.5, 2.0, 8.0, 30.0)
 END_WINDOW_S = 0.5
 #: Longest time (s) a velocity is carried across a gap: people turn.
 MAX_EXTRAPOLATION_S = 1.0
+#: Longest overlap (s) of two linked pieces: a track cut often goes on in a new one at the
+#: same sample or a few after (the overlap's samples then keep one slot, see _one_slot_each).
+MAX_OVERLAP_S = 0.5
 #: Position tolerance (m): at zero gap, and its growth with the gap (m/s).
 POSITION_SD_M = 0.25
 SPEED_SD_M_S = 0.7
@@ -92,7 +96,7 @@ def link_persons(joints: NDArray[np.float64], track_ids: NDArray[np.int64],
         pieces, ids = _pieces(labels, floor, size, times)
         nxt = _link(pieces, max_gap, FILL_MAX_S if max_gap > GAP_ROUNDS_S[0] else 0.0)
         labels = _relabel(labels, ids, nxt)
-    return _number_persons(labels, times)
+    return _number_persons(_one_slot_each(labels, joints), times)
 
 
 def _floor_and_size(joints: NDArray[np.float64]) -> tuple[NDArray[np.float64],
@@ -202,13 +206,16 @@ def _end_state(ts: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.f
 
 def _link_cost(pc: _Pieces, max_gap: float) -> NDArray[np.float64]:
     """Cost (n, n) of linking the end of piece i to the start of piece j; inf where not
-    allowed (overlap in time, a gap beyond ``max_gap``, out of reach)."""
-    gap = pc.start[None, :] - pc.end[:, None]
-    allowed = (gap > 0) & (gap <= max_gap)
-    h = np.minimum(gap, MAX_EXTRAPOLATION_S)[..., None]
+    allowed (overlap in time beyond :data:`MAX_OVERLAP_S`, a gap beyond ``max_gap``, out of
+    reach)."""
+    overlap = pc.start[None, :] - pc.end[:, None]
+    allowed = (overlap > -MAX_OVERLAP_S) & (overlap <= max_gap)
+    gap = np.abs(overlap)
+    h = np.clip(overlap, -MAX_OVERLAP_S, MAX_EXTRAPOLATION_S)[..., None]  # signed
     p_end, v_end = pc.tail[:, None, 0], pc.tail[:, None, 1]
     p_start, v_start = pc.head[None, :, 0], pc.head[None, :, 1]
-    # both ends carried half-way towards each other (the start backwards in time)
+    # both ends carried half-way to each other in time (the start backwards; an overlap's
+    # end backwards and start forwards)
     miss = np.linalg.norm((p_end + v_end * h / 2) - (p_start - v_start * h / 2), axis=-1)
     sd = POSITION_SD_M + SPEED_SD_M_S * gap
     reach = np.linalg.norm(p_start - p_end, axis=-1) <= POSITION_SD_M + MAX_SPEED_M_S * gap
@@ -265,6 +272,21 @@ def _relabel(labels: NDArray[np.int64], ids: NDArray[np.int64],
     out = labels.copy()
     m = labels >= 0
     out[m] = ids[root][np.searchsorted(ids, labels[m])]
+    return out
+
+
+def _one_slot_each(labels: NDArray[np.int64], joints: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Where linked pieces overlap, one slot per person and time: the one with the most joints."""
+    out = labels.copy()
+    n_joints = np.isfinite(joints[..., 0]).sum(axis=-1)
+    distinct_empty = np.where(labels >= 0, labels, -1 - np.arange(labels.shape[1]))
+    for t in np.flatnonzero((np.diff(np.sort(distinct_empty, axis=1), axis=1) == 0).any(1)):
+        row = labels[t]
+        for k in np.unique(row[row >= 0]):
+            slots = np.flatnonzero(row == k)
+            if slots.size > 1:
+                keep = slots[np.argmax(n_joints[t, slots])]
+                out[t, slots[slots != keep]] = -1
     return out
 
 

@@ -34,6 +34,21 @@ def test_a_person_lost_for_a_second_is_one_person():
     assert set(np.unique(linked[:, 1])) == {1}
 
 
+def test_a_track_that_goes_on_in_a_new_one_a_few_frames_early_is_one_person():
+    joints, times = walkers([1.7, 1.7], [(0, 0), (0, 5)], [(1.2, 0), (1.0, 0.3)])
+    cut = int(3.0 * FPS)
+    twice = joints[cut - 3:cut, :1] + 0.01  # samples where both tracks hold the person
+    joints = np.concatenate([joints, np.full_like(joints[:, :1], np.nan)], axis=1)
+    ids = np.tile([0, 1, -1], (len(times), 1))
+    joints[cut - 3:cut, 2:], ids[cut - 3:cut, 2] = twice, 7
+    joints[cut:, 2], ids[cut:, 2] = joints[cut:, 0], 7
+    joints[cut:, 0], ids[cut:, 0] = np.nan, -1
+    linked = link_persons(joints, ids, times)
+    person = linked[0, 0]
+    assert (linked[cut:, 2] == person).all() and (linked[:cut, 0] == person).all()
+    assert ((linked == person).sum(axis=1) == 1).all()  # one slot per person and time
+
+
 def test_crossing_persons_are_told_apart_by_size_and_heading():
     # two people meet at (3, 0) at t = 3 s: there, one track each ends and two new ones start
     joints, times = walkers([1.55, 1.90], [(0, -3), (6, -3)], [(1.0, 1.0), (-1.0, 1.0)])
