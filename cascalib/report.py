@@ -24,6 +24,7 @@ from cascalib.plots import (
     plot_rig_3d,
     save_figure,
 )
+from cascalib.stages.align import AlignmentResult
 
 if TYPE_CHECKING:
     from cascalib.pipeline import CalibrationResult
@@ -62,11 +63,20 @@ def _png(fig: Figure, path: Path) -> str:
     return base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def reprojection_errors(result: CalibrationResult) -> dict[str, np.ndarray]:
-    """Per camera, the reprojection errors (px) of its associated keypoints."""
+#: Most person-frames whose keypoints the reprojection histograms show: evenly spread, they
+#: draw the same distribution, and triangulating every one again took seconds.
+HISTOGRAM_GROUPS = 2000
+
+
+def reprojection_errors(result: CalibrationResult, max_groups: int | None = HISTOGRAM_GROUPS
+                        ) -> dict[str, np.ndarray]:
+    """Per camera, the reprojection errors (px) of its associated keypoints (of at most
+    ``max_groups`` person-frames spread over the recording; None: all)."""
     from cascalib.stages.reconstruct import triangulate_groups
 
     assoc = result.refinement.association
+    if max_groups is not None and assoc.n_groups > max_groups:
+        assoc = assoc.subset(np.linspace(0, assoc.n_groups - 1, max_groups).astype(np.int64))
     joints = np.arange(assoc.obs.shape[2])
     _, err = triangulate_groups(assoc, list(result.calibration.cameras), joints)
     return {cam.name: err[:, c].ravel() for c, cam in enumerate(result.calibration)}
@@ -106,12 +116,13 @@ def _stage_figures(result: CalibrationResult) -> list[tuple[str, str, Figure]]:
         for name, sv in result.single_view.items():
             figs.append(("Stage I: single-view ground plane", f"{name}: 1 m ground grid and "
                          "inlier (green) / outlier (red) ankle-to-shoulder segments", sv_plot(sv)))
+    staged = isinstance(result.alignment, AlignmentResult)  # else the multi-view start
     sync_plot = _optional("cascalib.stages.align_plot", "plot_sync_curves")
-    if sync_plot is not None:
+    if sync_plot is not None and staged:
         figs.append(("Stages II-IV: synchronisation", "Sync cost per camera pair with the "
                      "chosen offset", sync_plot(result.alignment)))
     epi_plot = _optional("cascalib.stages.align_plot", "plot_epipolar_curves")
-    epi_fig = epi_plot(result.alignment) if epi_plot is not None else None
+    epi_fig = epi_plot(result.alignment) if epi_plot is not None and staged else None
     if epi_fig is not None:
         figs.append(("Stages II-IV: synchronisation", "Sub-frame clocks: the epipolar "
                      "consistency of the people's joints per camera pair over the clock shift "

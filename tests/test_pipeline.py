@@ -157,3 +157,21 @@ def test_wide_lenses_are_found_before_the_principal_points():
         assert abs(est.dist[0] - true.dist[0]) < 0.04, (est.name, est.dist, true.dist)
     summary = compare_calibrations(res.calibration, scene.truth).summary
     assert summary.pairwise_rotation_error_deg_median < 1.0, summary
+
+
+def test_save_writes_a_trc_per_person_and_times_itself(result, tmp_path):
+    written = result.save(tmp_path, report=False)
+    trc = [p for k, p in written.items() if k.endswith(".trc")]
+    n_persons = len(result.poses.persons())
+    assert 1 <= len(trc) == n_persons <= 1.5 * SHORT["people.n_persons"]
+    assert {"calibration", "poses"} <= set(result.save_timings)
+
+
+def test_report_histograms_from_a_spread_of_person_frames(result):
+    from cascalib.report import reprojection_errors
+
+    every = reprojection_errors(result, max_groups=None)
+    some = reprojection_errors(result, max_groups=200)
+    for name, errors in some.items():
+        assert errors.size == 200 * result.refinement.association.obs.shape[2]
+        assert np.nanmedian(errors) == pytest.approx(np.nanmedian(every[name]), rel=0.15)
