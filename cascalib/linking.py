@@ -182,13 +182,13 @@ def _fill_holes(labels: NDArray[np.int64], floor: NDArray[np.float64],
             if cost < MAX_LINK_COST:
                 fills.append((cost, int(j), int(i)))
     done: set[int] = set()
-    for _, j, i in sorted(fills):  # type: ignore[assignment]
-        rows_j = set(where[int(ids[j])][0].tolist())
-        if j in done or rows_j & taken[int(ids[i])]:
+    for _, short, host in sorted(fills):
+        rows = set(where[int(ids[short])][0].tolist())
+        if short in done or rows & taken[int(ids[host])]:
             continue
-        out[labels == ids[j]] = ids[i]
-        taken[int(ids[i])] |= rows_j
-        done.add(j)  # type: ignore[arg-type]
+        out[labels == ids[short]] = ids[host]
+        taken[int(ids[host])] |= rows
+        done.add(short)
     return out
 
 
