@@ -18,21 +18,23 @@ _ALEMBIC_DIR = Path(__file__).resolve().parent / "alembic"
 _MIGRATION_LOCK = 727_411_009
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, busy_timeout: float = 30.0) -> Engine:
     """Engine for ``url``; SQLite gets WAL, a busy timeout and foreign keys.
 
     Several processes (the API and its worker processes) write to one SQLite file, so writers
-    wait for each other (busy timeout) instead of failing with "database is locked".
+    wait for each other (``busy_timeout`` seconds) before failing with "database is locked"
+    (then the store's callers retry, see ``Store.retrying``).
     """
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        engine = create_engine(url, connect_args={"timeout": busy_timeout,
+                                                  "check_same_thread": False})
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn: Any, _record: Any) -> None:
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
             cur.execute("PRAGMA foreign_keys=ON")
-            cur.execute("PRAGMA busy_timeout=30000")
+            cur.execute(f"PRAGMA busy_timeout={int(busy_timeout * 1000)}")
             cur.close()
 
         return engine

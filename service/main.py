@@ -65,7 +65,7 @@ def prepare_store(settings: Settings) -> Store:
     ConfigurationError
         No token configured outside development mode (see ``Settings.check_startable``).
     """
-    store = Store(settings.sqlalchemy_url, settings.data_dir)
+    store = Store.from_settings(settings)
     try:
         store.prepare()
         with store.session() as session:

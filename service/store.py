@@ -14,14 +14,16 @@ from __future__ import annotations
 import hashlib
 import logging
 import shutil
-from collections.abc import Iterator, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
+from typing import Any, TypeVar
 
-from sqlalchemy import Engine, func, select, update
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy import Engine, func, select, text, update
+from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError
 from sqlalchemy.orm import Session, selectinload, sessionmaker
 
 from service.db import make_engine, migrate
@@ -30,6 +32,8 @@ from service.models import ApiToken, Job, JobFile, utcnow
 __all__ = [
     "StoredFile",
     "Store",
+    "StoreUnavailable",
+    "TRANSIENT",
     "add_api_token",
     "cancel_job",
     "claim_job",
@@ -51,6 +55,18 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+#: Database errors that pass: a lock held by another writer, a dropped connection, a restart.
+TRANSIENT = (OperationalError, InterfaceError)
+_FIRST_WAIT = 0.05  # s, first pause before retrying; doubles up to _LONGEST_WAIT
+_LONGEST_WAIT = 2.0
+_READY_TIMEOUT = 1.0  # s a readiness probe waits for the write lock
+
+
+class StoreUnavailable(RuntimeError):
+    """The database stayed unavailable through every retry (the API answers 503)."""
+
 
 QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
     "queued", "running", "succeeded", "failed", "cancelled")
@@ -80,9 +96,12 @@ class StoredFile:
 class Store:
     """Engine, sessions and file layout of one service installation."""
 
-    def __init__(self, database_url: str, data_dir: Path) -> None:
-        self.engine: Engine = make_engine(database_url)
+    def __init__(self, database_url: str, data_dir: Path, *, busy_timeout: float = 30.0,
+                 retry_seconds: float = 60.0) -> None:
+        self.engine: Engine = make_engine(database_url, busy_timeout)
         self.sessions = sessionmaker(self.engine, expire_on_commit=False)
+        self.busy_timeout = busy_timeout
+        self.retry_seconds = retry_seconds
         self.data_dir = data_dir
         self.jobs_dir = data_dir / "jobs"
         self.staging_dir = data_dir / "staging"
@@ -98,6 +117,58 @@ class Store:
         """A session closed on exit (callers commit through the functions below)."""
         with self.sessions() as session:
             yield session
+
+    @classmethod
+    def from_settings(cls, settings: Any) -> Store:
+        """The store of the service settings (database, data folder, timeouts)."""
+        return cls(settings.sqlalchemy_url, settings.data_dir,
+                   busy_timeout=settings.db_busy_timeout_seconds,
+                   retry_seconds=settings.db_retry_seconds)
+
+    def retrying(self, what: str, fn: Callable[[Session], T]) -> T:
+        """``fn(session)`` in a fresh session, again after a transient database error, with
+        growing pauses, for up to ``retry_seconds``.
+
+        Raises
+        ------
+        StoreUnavailable
+            The database stayed unavailable (the message names ``what``, never the SQL).
+        """
+        deadline = time.monotonic() + self.retry_seconds
+        wait = _FIRST_WAIT
+        while True:
+            try:
+                with self.session() as session:
+                    return fn(session)
+            except TRANSIENT as exc:
+                cause = type(getattr(exc, "orig", exc)).__name__
+                if time.monotonic() + wait > deadline:
+                    raise StoreUnavailable(f"{what}: the job store is unavailable ({cause})"
+                                           ) from exc
+                log.warning("%s: the job store is unavailable (%s), retrying in %.2f s", what,
+                            cause, wait)
+                time.sleep(wait)
+                wait = min(2 * wait, _LONGEST_WAIT)
+
+    def check_writable(self) -> str:
+        """"ok" when a write would go through within ``_READY_TIMEOUT`` (nothing is changed),
+        else why not."""
+        try:
+            with self.engine.connect() as conn:
+                if conn.dialect.name == "sqlite":
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={int(_READY_TIMEOUT * 1000)}")
+                else:
+                    conn.execute(text(f"SET LOCAL lock_timeout = '{int(_READY_TIMEOUT * 1000)}ms'"))
+                try:
+                    conn.execute(text("UPDATE alembic_version SET version_num = version_num"))
+                finally:
+                    conn.rollback()
+                    if conn.dialect.name == "sqlite":
+                        conn.exec_driver_sql(
+                            f"PRAGMA busy_timeout={int(self.busy_timeout * 1000)}")
+        except TRANSIENT as exc:
+            return f"not writable: {type(getattr(exc, 'orig', exc)).__name__}"
+        return "ok"
 
     def job_dir(self, job_id: str) -> Path:
         """Folder of one job (job ids are server-generated hex strings)."""

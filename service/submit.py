@@ -53,10 +53,9 @@ def _commit(state: AppState, sub: Submission, owner: str, key: str | None) -> Jo
     sub.folder.rename(job_dir)
     sub.folder = job_dir
     try:
-        with state.store.session() as session:
-            return st.create_job(session, job_id=job_id, owner=owner, options=sub.options_json,
-                                 cameras=sub.cameras, inputs=sub.files, idempotency_key=key,
-                                 request_hash=sub.request_hash)
+        return state.store.retrying("store the job", lambda session: st.create_job(
+            session, job_id=job_id, owner=owner, options=sub.options_json, cameras=sub.cameras,
+            inputs=sub.files, idempotency_key=key, request_hash=sub.request_hash))
     except BaseException:
         sub.discard()
         raise

@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     add.add_argument("name", help="who the token is for (unique)")
     args = parser.parse_args(argv)
     settings = Settings()
-    store = Store(settings.sqlalchemy_url, settings.data_dir)
+    store = Store.from_settings(settings)
     try:
         store.prepare()
         token = secrets.token_urlsafe(32)

@@ -69,6 +69,15 @@ class Settings(BaseSettings):
         description="A running job without heartbeat for this long is presumed dead.",
     )
     max_upload_bytes: int = Field(default=512 * 2**20, ge=1024, description="Whole request.")
+    db_busy_timeout_seconds: float = Field(
+        default=5.0, gt=0,
+        description="SQLite: how long a write waits for another writer's lock per try.",
+    )
+    db_retry_seconds: float = Field(
+        default=60.0, ge=0,
+        description="How long a write is retried while the database is locked or unreachable; "
+        "then the API answers 503 with Retry-After and a worker leaves the job to recovery.",
+    )
     body_timeout_seconds: float = Field(
         default=60.0, gt=0,
         description="A request body that stops arriving for this long is answered 408.",

@@ -19,10 +19,14 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from api_schemas import PROBLEM_MEDIA_TYPE, InvalidParam, Problem
 from cascalib.errors import CascalibError
+from service.store import TRANSIENT, StoreUnavailable
 
 __all__ = ["ProblemError", "install_handlers", "problem_response", "from_cascalib"]
 
 log = logging.getLogger(__name__)
+
+#: Seconds a client is told to wait when the job store is unavailable.
+_STORE_RETRY_AFTER = 5
 
 _TITLES = {400: "Bad request", 401: "Unauthorized", 404: "Not found", 405: "Method not allowed",
            408: "Request timeout", 409: "Conflict", 413: "Payload too large",
@@ -131,6 +135,15 @@ def install_handlers(app: FastAPI) -> None:
         if exc.status_code == 405:
             headers = {**(headers or {}), "Allow": ", ".join(allowed_methods(request))}
         return problem_response(request, exc.status_code, str(exc.detail), headers=headers)
+
+    async def _unavailable(request: Request, exc: Exception) -> JSONResponse:
+        log.warning("%s %s: %s", request.method, request.url.path,
+                    exc if isinstance(exc, StoreUnavailable) else type(exc).__name__)
+        return problem_response(request, 503, "the job store is unavailable for now; retry "
+                                "later", headers={"Retry-After": str(_STORE_RETRY_AFTER)})
+
+    for kind in (StoreUnavailable, *TRANSIENT):
+        app.add_exception_handler(kind, _unavailable)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -46,7 +46,7 @@ def _worker_store(settings: Settings) -> Store:
         if _store is None:
             from service.db import current_revision, head_revision
 
-            store = Store(settings.sqlalchemy_url, settings.data_dir)
+            store = Store.from_settings(settings)
             deadline = time.monotonic() + 120
             while current_revision(store.engine) != head_revision():
                 if time.monotonic() > deadline:

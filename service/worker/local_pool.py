@@ -16,6 +16,7 @@ import logging
 import multiprocessing
 import os
 import threading
+import time
 import uuid
 from dataclasses import dataclass
 from multiprocessing.process import BaseProcess
@@ -35,6 +36,8 @@ log = logging.getLogger(__name__)
 _PREFIX = "local:"
 #: Job processes run below the API and the upload validators, so polls stay fast under load.
 JOB_NICENESS = 10
+#: /readyz reports the pool unready when its rounds have failed for this many seconds.
+_STALLED = 10.0
 #: Imported once by the fork server (missing modules are skipped by multiprocessing).
 PRELOAD = ("service.worker.runner", "service.inputs", "cascalib.formats", "cascalib.pipeline")
 
@@ -55,7 +58,7 @@ def run_claimed_job(job_id: str, attempt: int, settings: Settings) -> None:
     name_process("cascalib-job")
     os.nice(JOB_NICENESS)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    store = Store(settings.sqlalchemy_url, settings.data_dir)
+    store = Store.from_settings(settings)
     try:
         execute_claimed(job_id, attempt, store, heartbeat=settings.heartbeat_seconds,
                         limits=zip_limits(settings))
@@ -78,6 +81,7 @@ class LocalPool:
         self._ctx = multiprocessing.get_context("forkserver")
         self._ctx.set_forkserver_preload(list(PRELOAD))
         self._running: dict[str, _Running] = {}
+        self._last_round = time.monotonic()
         self._wake = threading.Event()
         self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True, name="cascalib-pool")
@@ -101,8 +105,8 @@ class LocalPool:
         for job_id, run in list(self._running.items()):
             run.process.kill()
             run.process.join(timeout=5)
-            with self.store.session() as session:
-                st.release_job(session, job_id=job_id, attempt=run.attempt)
+            self.store.retrying(f"release job {job_id}", lambda session, j=job_id, r=run:
+                                st.release_job(session, job_id=j, attempt=r.attempt))
         self._running.clear()
 
     def submit(self, job_id: str) -> None:
@@ -114,8 +118,11 @@ class LocalPool:
         self._wake.set()
 
     def ready(self) -> str:
-        """State for /readyz."""
-        return "ok" if self._thread.is_alive() else "worker pool not running"
+        """State for /readyz: the dispatcher runs and its last round went through."""
+        if not self._thread.is_alive():
+            return "worker pool not running"
+        stalled = time.monotonic() - self._last_round
+        return "ok" if stalled < _STALLED else f"worker pool stalled for {stalled:.0f} s"
 
     @property
     def running(self) -> dict[str, int]:
@@ -140,7 +147,11 @@ class LocalPool:
                 self._reap()
                 self._check_cancelled()
                 self._fill()
-            except Exception:  # the database may be briefly unavailable: retry next round
+                self._last_round = time.monotonic()
+            except st.TRANSIENT as exc:  # the database is briefly unavailable: next round
+                log.warning("worker pool round: the job store is unavailable (%s)",
+                            type(getattr(exc, "orig", exc)).__name__)
+            except Exception:
                 log.exception("worker pool round failed")
             self._wake.wait(0.5)
             self._wake.clear()
@@ -150,13 +161,13 @@ class LocalPool:
             if run.process.is_alive():
                 continue
             run.process.join()
-            del self._running[job_id]
             code = run.process.exitcode
             with self.store.session() as session:
                 new = st.requeue_or_fail(
                     session, job_id=job_id, attempt=run.attempt,
                     reason=f"the worker process died (exit code {code})",
                     max_attempts=self.settings.max_attempts)
+            del self._running[job_id]  # only once recorded: a failed write is retried
             if new is not None:
                 log.warning("job %s: worker died (exit code %s), now %s", job_id, code, new)
 

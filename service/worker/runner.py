@@ -188,7 +188,11 @@ class _Reporter:
         now = time.monotonic()
         if stage != self._stage or now - self._last > 0.5:
             self._stage, self._last = stage, now
-            self._write(stage, fraction)
+            try:
+                self._write(stage, fraction)
+            except st.TRANSIENT as exc:  # progress can wait: the job goes on
+                log.warning("job %s: progress not recorded, the job store is unavailable (%s)",
+                            self.job_id, type(getattr(exc, "orig", exc)).__name__)
         if self.lost.is_set():
             raise JobCancelled(f"job {self.job_id} was cancelled")
 
@@ -199,6 +203,15 @@ class _Reporter:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
+
+
+def _internal_error(exc: Exception, names: _Names) -> str:
+    """What a client is told of an unexpected error: its kind and message, never SQL."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    if isinstance(exc, (SQLAlchemyError, st.StoreUnavailable)):
+        return "internal error: the job store was unavailable"
+    return names.clean(f"internal error: {type(exc).__name__}: {exc}")[:2000]
 
 
 def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float,
@@ -222,14 +235,15 @@ def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float
             error = f"the calibration pipeline is not available in this installation ({exc})"
         except Exception as exc:
             log.exception("job %s attempt %d crashed", job_id, attempt)
-            error = names.clean(f"internal error: {type(exc).__name__}: {exc}")[:2000]
+            error = _internal_error(exc, names)
     if status == st.CANCELLED:
-        log.info("job %s stopped: cancelled", job_id)
+        log.info("job %s attempt %d stopped: cancelled or taken over by another worker",
+                 job_id, attempt)
         return status
-    with store.session() as session:
-        if not st.finish_job(session, job_id=job_id, attempt=attempt, status=status,
-                             error=error, outputs=outputs):
-            log.info("job %s attempt %d finished but was cancelled meanwhile", job_id, attempt)
-            return st.CANCELLED
+    if not store.retrying(f"record the end of job {job_id}", lambda session: st.finish_job(
+            session, job_id=job_id, attempt=attempt, status=status, error=error,
+            outputs=outputs)):
+        log.info("job %s attempt %d finished but was cancelled meanwhile", job_id, attempt)
+        return st.CANCELLED
     log.info("job %s attempt %d: %s%s", job_id, attempt, status, f" ({error})" if error else "")
     return status
