@@ -24,6 +24,12 @@ from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.poses import Poses3D
 from cascalib.stages.align import AlignmentResult, align_cameras
+from cascalib.stages.multiview_path import (
+    MultiviewInitial,
+    known_clocks,
+    multiview_initial,
+    refine_or_start,
+)
 from cascalib.stages.refine import RefineResult, refine
 from cascalib.stages.single_view import calibrate_single_view
 from cascalib.stages.single_view_result import SingleViewResult
@@ -54,14 +60,19 @@ class CalibrationResult:
         3D poses of every reference frame where a person is seen by two cameras.
     single_view : dict of str to SingleViewResult
         Stage I per camera.
-    alignment : AlignmentResult
-        Stages II-IV (sync cost curves, ground trajectories, pairwise results).
+    alignment : AlignmentResult or MultiviewInitial
+        Stages II-IV (sync cost curves, ground trajectories, pairwise results), or the
+        multi-view start where stage I could not decide every camera.
     refinement : RefineResult
         Stage V (solver statistics, association, per-camera quality).
     config : CalibrationConfig
         The configuration used.
     timings : dict of str to float
         Seconds spent per stage.
+    left_out : dict of str to str
+        Cameras that could not be placed, with the reason (also in ``calibration.quality``).
+    stage_i_advice : dict of str to str
+        Why stage I could not decide a camera (the multi-view start replaced it).
     save_timings : dict of str to float
         Seconds :meth:`save` spent on the calibration files, the poses and the report.
     """
@@ -69,17 +80,29 @@ class CalibrationResult:
     calibration: Calibration
     poses: Poses3D
     single_view: dict[str, SingleViewResult]
-    alignment: AlignmentResult
+    alignment: AlignmentResult | MultiviewInitial
     refinement: RefineResult
     config: CalibrationConfig
     tracks: list[Tracks] = field(repr=False, default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
+    left_out: dict[str, str] = field(default_factory=dict)
+    stage_i_advice: dict[str, str] = field(default_factory=dict)
     save_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def accepted(self) -> bool:
         """True when no camera's verdict is ``failed``."""
         return all(q.verdict != "failed" for q in self.refinement.quality.values())
+
+    def warnings(self) -> list[str]:
+        """What the user should know about this result that the verdicts do not say."""
+        out = [f"camera {n} left out: {why}" for n, why in self.left_out.items()]
+        if self.stage_i_advice:
+            out.append("stage I could not decide " + ", ".join(self.stage_i_advice)
+                       + ": the cameras were started from the people's joints seen together")
+        if "ground z=0" not in self.calibration.world:
+            out.append(f"no feet seen by two cameras: the world is {self.calibration.world}")
+        return out
 
     def summary(self) -> dict[str, Any]:
         """Machine-readable summary (the CLI's ``--json``)."""
@@ -98,7 +121,8 @@ class CalibrationResult:
                 "reprojection_median_px": q.reprojection_median_px if q else None,
             })
         return {"ok": self.accepted, "reference_camera": self.calibration.reference_camera,
-                "cameras": cams, "timings_s": self.timings, "save_timings_s": self.save_timings}
+                "cameras": cams, "left_out": self.left_out, "warnings": self.warnings(),
+                "timings_s": self.timings, "save_timings_s": self.save_timings}
 
     def save(self, outdir: str | Path, formats: Sequence[str] = ("json",),
              report: bool = True) -> dict[str, Path]:
@@ -157,9 +181,10 @@ def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:
 
 
 def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.random.Generator,
-                 progress: Progress) -> dict[str, SingleViewResult]:
+                 progress: Progress) -> tuple[dict[str, SingleViewResult], dict[str, str]]:
+    """Stage I per camera: its results, and why it could not decide the others."""
     results: dict[str, SingleViewResult] = {}
-    failures: list[str] = []
+    failures: dict[str, str] = {}
     for i, t in enumerate(tracks):
         try:
             k = cfg.known_intrinsics.get(t.camera)
@@ -168,13 +193,16 @@ def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.rando
                                                       rng=rng, known_intrinsics=known)
             log.info("stage I %s", results[t.camera].summary())
         except EstimationFailed as exc:
-            failures.append(str(exc))
+            failures[t.camera] = str(exc)
+            log.info("stage I %s: %s", t.camera, exc)
         progress("single_view", (i + 1) / len(tracks))
-    if failures:
-        raise EstimationFailed("single-view calibration failed for "
-                               f"{len(failures)} of {len(tracks)} cameras:\n  "
-                               + "\n  ".join(failures), field="single_view")
-    return results
+    return results, failures
+
+
+def _stage_i_failed(failures: dict[str, str], n: int, why: str) -> EstimationFailed:
+    return EstimationFailed(f"single-view calibration failed for {len(failures)} of {n} cameras "
+                            f"and {why}:\n  " + "\n  ".join(failures.values()),
+                            field="single_view")
 
 
 def _apply_known(cameras: list[Camera], cfg: CalibrationConfig) -> list[Camera]:
@@ -228,27 +256,43 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    single = _single_view(tracks, cfg, rng, report)
+    single, failures = _single_view(tracks, cfg, rng, report)
     timings["single_view"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
     report("sync", 0.0)
-    aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                            progress=lambda f: report("sync", f), height=cfg.height,
-                            fixed_intrinsics=tuple(cfg.known_intrinsics))
-    initial = aligned.calibration
-    if cfg.synchronized:
-        initial = _synchronized(initial, tracks)
+    left_out: dict[str, str] = {}
+    aligned: AlignmentResult | MultiviewInitial
+    if not failures:  # stages II-IV from every camera's ground plane
+        plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
+        aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
+                                progress=lambda f: report("sync", f), height=cfg.height,
+                                fixed_intrinsics=tuple(cfg.known_intrinsics))
+        initial = aligned.calibration
+        if cfg.synchronized:
+            initial = _synchronized(initial, tracks)
+    else:  # the multi-view start: the joints as point matches, on known clocks
+        clocks = known_clocks(tracks, cfg.synchronized)
+        if clocks is None:
+            raise _stage_i_failed(failures, len(tracks), "the clocks are unknown, so the "
+                                  "multi-view start cannot replace it (give --synchronized, or "
+                                  "timestamps on one clock)")
+        aligned = multiview_initial(tracks, cfg, single, clocks, rng)
+        initial, left_out = aligned.calibration, aligned.left_out
+        tracks = [t for t in tracks if t.camera in initial.names]
     report("sync", 1.0)
     timings["sync"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     report("refine", 0.0)
-    rcfg = cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized else cfg.refine
-    refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng,
-                     progress=lambda f: report("refine", f),
-                     fixed_intrinsics=tuple(cfg.known_intrinsics))
+    if isinstance(aligned, MultiviewInitial):
+        refined = refine_or_start(tracks, aligned, cfg, rng, lambda f: report("refine", f))
+    else:
+        rcfg = (cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized
+                else cfg.refine)
+        refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng,
+                         progress=lambda f: report("refine", f),
+                         fixed_intrinsics=tuple(cfg.known_intrinsics))
     report("refine", 1.0)
     timings["refine"] = time.perf_counter() - t0
 
@@ -258,5 +302,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
                     refined.residuals)
     report("triangulate", 1.0)
     timings["triangulate"] = time.perf_counter() - t0
-    return CalibrationResult(refined.calibration, poses, single, aligned, refined, cfg,
-                             tracks, timings)
+    calibration = refined.calibration
+    if left_out:
+        calibration.quality["left_out"] = dict(left_out)
+    return CalibrationResult(calibration, poses, single, aligned, refined, cfg, tracks, timings,
+                             left_out=left_out, stage_i_advice=failures)

@@ -1,0 +1,202 @@
+"""The second way into the cascade: when stage I cannot decide a camera, start stage V from the
+multi-view start (:mod:`~cascalib.stages.multiview_start`) instead of stages II-IV.
+
+It needs the clocks: cameras known to be synchronised, or timestamps on one clock (the cameras of
+one multi-camera file, such as caliscope's CSV). Stage I's focal lengths, where it found them,
+and known intrinsics are used as the start; a camera that cannot be placed is left out with its
+reason, and the others go on.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cascalib.calibration import Calibration
+from cascalib.camera import Camera
+from cascalib.config import CalibrationConfig
+from cascalib.errors import EstimationFailed, RefinementFailed
+from cascalib.stages.multiview_start import (
+    MultiviewStart,
+    WorldFrame,
+    multiview_start,
+    to_world,
+    world_frame,
+)
+from cascalib.stages.quality import CameraQuality
+from cascalib.stages.reconstruct import poses_by_slot, prepare, reconstruct, views_at
+from cascalib.stages.refine import refine
+from cascalib.stages.refine_result import RefineResult
+from cascalib.stages.single_view_result import SingleViewResult
+from cascalib.tracks import Tracks
+
+__all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "refine_or_start",
+           "start_result", "WORLD_NOTE"]
+
+log = logging.getLogger(__name__)
+
+#: Joints used as point matches: every canonical joint (the detector's confidence gates them).
+MATCH_JOINTS = np.arange(26)
+#: What the world frame is when no feet are seen (written into the calibration's world field).
+WORLD_NOTE = "z-up from the people's heads above their shoulders, z=0 at the lowest joint seen"
+
+
+@dataclass(frozen=True)
+class MultiviewInitial:
+    """Stage V's start from the multi-view start.
+
+    Attributes
+    ----------
+    calibration : Calibration
+        The placed cameras in the world (z up, metres), with the known clocks.
+    left_out : dict of str to str
+        Cameras that could not be placed, with the reason.
+    start : MultiviewStart
+        The bundle it came from (pairs, groups, reprojection errors).
+    frame : WorldFrame
+        How the bundle's frame became the world.
+    """
+
+    calibration: Calibration
+    left_out: dict[str, str]
+    start: MultiviewStart
+    frame: WorldFrame
+
+
+def _linear_clock(times: NDArray[np.float64]) -> tuple[float, float]:
+    """(start s, frame period s) of the line through a camera's frame timestamps."""
+    k = np.arange(times.size, dtype=np.float64)
+    ok = np.isfinite(times)
+    period, start = np.polyfit(k[ok], times[ok], 1)
+    return float(start), float(period)
+
+
+def known_clocks(tracks: Sequence[Tracks], synchronized: bool
+                 ) -> list[tuple[float, float]] | None:
+    """Each camera's (time offset, rate) on the first camera's clock when it is known without
+    searching: synchronised cameras, or timestamps that all cameras read from one multi-camera
+    file share. None otherwise."""
+    ref = tracks[0]
+    if synchronized:
+        fps_ref = ref.fps or 1.0
+        return [(0.0, fps_ref / (t.fps or fps_ref)) for t in tracks]
+    one_file = len({t.source for t in tracks}) == 1 and ref.source is not None
+    if not one_file or any(t.timestamps is None for t in tracks):
+        return None
+    lines = [_linear_clock(t.timestamps) for t in tracks]  # type: ignore[arg-type]
+    start_ref, period_ref = lines[0]
+    return [((start - start_ref) / period_ref, period / period_ref) for start, period in lines]
+
+
+def _bases(tracks: Sequence[Tracks], cfg: CalibrationConfig,
+           clocks: list[tuple[float, float]]) -> list[Camera]:
+    """Per camera: image size, clock, known intrinsics or a centred principal point."""
+    out = []
+    for t, (offset, rate) in zip(tracks, clocks, strict=True):
+        size = t.require_image_size()
+        cam = Camera.from_params(t.camera, size, float(np.hypot(*size)), np.eye(3), np.zeros(3),
+                                 fps=t.fps, time_offset=offset, time_rate=rate)
+        k = cfg.known_intrinsics.get(t.camera)
+        out.append(cam if k is None else cam.with_(K=np.array(k.K), dist=np.array(k.dist)))
+    return out
+
+
+def _rebase_clocks(cams: list[Camera]) -> list[Camera]:
+    """Clocks on the first camera's (when the first input camera was left out)."""
+    off0, rate0 = cams[0].time_offset, cams[0].time_rate
+    return [c.with_(time_offset=(c.time_offset - off0) / rate0, time_rate=c.time_rate / rate0)
+            for c in cams]
+
+
+def multiview_initial(tracks: Sequence[Tracks], cfg: CalibrationConfig,
+                      single: dict[str, SingleViewResult],
+                      clocks: list[tuple[float, float]], rng: np.random.Generator
+                      ) -> MultiviewInitial:
+    """Place the cameras from the people's joints and put them in a metric, z-up world.
+
+    Raises
+    ------
+    EstimationFailed
+        When fewer than two cameras can be placed, or neither the up direction nor the scale
+        can be read from the people.
+    """
+    bases = _bases(tracks, cfg, clocks)
+    data = prepare(list(tracks), Calibration(bases))
+    views = views_at(data, bases)
+    hints = [float(single[t.camera].to_camera().focal) if t.camera in single
+             else (bases[i].focal if t.camera in cfg.known_intrinsics else None)
+             for i, t in enumerate(tracks)]
+    start = multiview_start(views, bases, rng, joints=MATCH_JOINTS, focal_hints=hints)
+    placed = [c for c in start.cameras if c is not None]
+    if len(placed) < 2:
+        raise EstimationFailed("the multi-view start placed fewer than two cameras: "
+                               + "; ".join(f"{k}: {v}" for k, v in start.reasons.items()),
+                               field="multiview")
+    try:
+        frame = world_frame(start.points, MATCH_JOINTS, placed, height=cfg.height,
+                            ankle_height=cfg.refine.ankle_height)
+    except ValueError as exc:
+        raise EstimationFailed(f"multi-view start: {exc}", field="multiview") from None
+    world = "z-up, ground z=0" if frame.ground else WORLD_NOTE
+    cams = _rebase_clocks([to_world(c, frame) for c in placed])
+    log.info("multi-view start: %d of %d cameras placed (start fov %.0f deg), up from %s",
+             len(cams), len(tracks), start.fov_start_deg, frame.up_from)
+    return MultiviewInitial(Calibration(cams, world=world), dict(start.reasons), start, frame)
+
+
+#: Reprojection error (px) under which an observation counts as an inlier in the start's report.
+START_INLIER_PX = 15.0
+
+
+def _start_quality(name: str, errors: NDArray[np.float64], reason: str) -> CameraQuality:
+    e = errors[np.isfinite(errors)]
+    return CameraQuality(
+        camera=name, n_observations=int(e.size),
+        reprojection_median_px=float(np.median(e)) if e.size else float("nan"),
+        reprojection_p90_px=float(np.percentile(e, 90)) if e.size else float("nan"),
+        inlier_rate=float(np.mean(e < START_INLIER_PX)) if e.size else 0.0,
+        sigma_focal_px=float("nan"), sigma_focal_rel=float("nan"),
+        sigma_rotation_deg=float("nan"), sigma_position_m=float("nan"), time_offset=0.0,
+        verdict="suspicious", reason=reason)
+
+
+def start_result(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: CalibrationConfig,
+                 why: str) -> RefineResult:
+    """The multi-view start as the final rig, when stage V could not refine it: every frame
+    triangulated with it, each camera "suspicious" with ``why`` (no uncertainty is known)."""
+    calib = initial.calibration
+    data = prepare(list(tracks), calib)
+    assoc, points, err = reconstruct(data, list(calib.cameras), cfg.refine, cfg.height)
+    poses, ids, resid = poses_by_slot(assoc, points, data.times, err)
+    reason = f"multi-view start only (bundle adjustment of the joints, no uncertainty): {why}"
+    quality = {c.name: replace(_start_quality(c.name, err[:, k], reason),
+                               time_offset=c.time_offset)
+               for k, c in enumerate(calib.cameras)}
+    calib = Calibration(list(calib.cameras), calib.reference_camera,
+                        {k: q.to_dict() for k, q in quality.items()}, calib.world)
+    return RefineResult(calib, poses, data.times, ids, quality, assoc, residuals=resid)
+
+
+def refine_or_start(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: CalibrationConfig,
+                    rng: np.random.Generator, progress: Callable[[float], None]) -> RefineResult:
+    """Stage V from the multi-view start; the start itself where stage V fails or leaves a
+    camera out (its association by ground position needs a world it can trust)."""
+    rcfg = (cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized
+            else cfg.refine)
+    try:
+        refined = refine(list(tracks), initial.calibration, rcfg, height=cfg.height, rng=rng,
+                         progress=progress, fixed_intrinsics=tuple(cfg.known_intrinsics))
+    except (EstimationFailed, RefinementFailed) as exc:
+        log.warning("stage V could not refine the multi-view start: %s", exc)
+        return start_result(tracks, initial, cfg, f"stage V failed: {exc}")
+    failed = [n for n, q in refined.quality.items() if q.verdict == "failed"]
+    if failed:
+        log.warning("stage V left %s out: the multi-view start is kept", ", ".join(failed))
+        return start_result(tracks, initial, cfg,
+                            f"stage V could not place {', '.join(failed)}: "
+                            + refined.quality[failed[0]].reason)
+    return refined
