@@ -172,8 +172,8 @@ def match_pair(i: int, j: int, va: NDArray[np.float64], vb: NDArray[np.float64],
     F, _ = cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, thr, 0.9999, 20000)
     if F is None or F.shape != (3, 3):
         return None
-    # OpenCV's F maps xb to lines in... x_b^T F x_a = 0: transpose to x_a^T F x_b = 0
-    F = F.T
+    # OpenCV's F has x_b^T F x_a = 0: transposed, x_a^T F x_b = 0
+    F = np.asarray(F, dtype=np.float64).T
     score = _group_median(sampson_distance(F, xa, xb), g, cand.t.size)
     kept = _one_to_one(cand, score, GROUP_GATE * thr)
     if kept.size < min_groups:

@@ -169,7 +169,8 @@ def _relative_pose(m: PairMatches, ci: Camera, cj: Camera
         return None
     _, R, t, _ = cv2.recoverPose(E, nj, ni, np.eye(3), mask=mask)
     # recoverPose gives x_i = R x_j + t (points from j's frame into i's): invert for j from i
-    return R.T, -R.T @ t.ravel()
+    Rt: NDArray[np.float64] = np.asarray(R, dtype=np.float64).T
+    return Rt, -Rt @ np.asarray(t, dtype=np.float64).ravel()
 
 
 def _observations(groups: PersonGroups, views: list[NDArray[np.float64]],
@@ -194,7 +195,7 @@ def _register(cam: Camera, X: NDArray[np.float64], uv: NDArray[np.float64]
                                                 flags=cv2.SOLVEPNP_SQPNP)
     if not found or inl is None or len(inl) < 12:
         return None
-    return rodrigues_to_matrix(rvec.ravel()), tvec.ravel()
+    return rodrigues_to_matrix(rvec.ravel()), np.asarray(tvec, dtype=np.float64).ravel()
 
 
 def _best_pair(pairs: list[PairMatches]) -> PairMatches:

@@ -11,9 +11,9 @@ from cascalib.calibration import Calibration
 from cascalib.camera import Camera, look_at
 from cascalib.metrics import compare_calibrations
 from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.multiview_pairs import match_pair
 from cascalib.stages.multiview_path import known_clocks
 from cascalib.stages.multiview_start import join_matches, multiview_start, world_frame
-from cascalib.stages.multiview_pairs import match_pair
 from cascalib.tracks import Tracks
 
 #: A standing person 1.70 m tall (canonical joints, metres, z up, facing +x).
