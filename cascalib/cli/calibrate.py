@@ -126,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{cam['name']:>10s}  f={cam['focal_px']:8.1f} px  "
                   f"C=({c[0]:6.2f}, {c[1]:6.2f}, {c[2]:5.2f}) m  offset={cam['time_offset']:8.2f}"
                   f"  rate={cam['time_rate']:.5f}  {cam['verdict']}: {cam['reason']}")
+        for warning in summary["warnings"]:
+            print(f"warning: {warning}")
         print(f"written to {args.output}/: "
               f"{files_line(args.output, written_since(args.output, before))}")
     if not result.accepted:
