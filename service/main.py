@@ -24,6 +24,7 @@ from service.core.config import Settings
 from service.core.limits import BodyLimitMiddleware
 from service.core.metrics import Metrics, MetricsMiddleware
 from service.core.problems import install_handlers, problem_openapi
+from service.core.proc import start_forkserver
 from service.store import Store
 from service.validation import Validator
 
@@ -114,6 +115,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             log.warning("authentication is OFF: every client sees every job")
         dispatcher = _dispatcher(settings, store)
         metrics = Metrics(store)
+        start_forkserver()
         validator = Validator(settings)
         app.state.cascalib = AppState(settings, store, dispatcher, metrics, validator)
         dispatcher.start()

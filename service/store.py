@@ -176,6 +176,13 @@ class Store:
             raise ValueError(f"invalid job id {job_id!r}")
         return self.jobs_dir / job_id
 
+    def clean_work(self, job_id: str) -> None:
+        """Delete what a killed attempt left in the job's folder: its scratch folders
+        (``tmp*``) and half-written outputs (``outputs.partial``)."""
+        folder = self.job_dir(job_id)
+        for leftover in [*folder.glob("tmp*"), folder / "outputs.partial"]:
+            shutil.rmtree(leftover, ignore_errors=True)
+
     def remove_files(self, job_id: str) -> None:
         """Delete a job's folder (after its row is gone)."""
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)

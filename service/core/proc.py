@@ -14,3 +14,23 @@ def name_process(name: str) -> None:
         libc.prctl(15, name.encode()[:15] + b"\0", 0, 0, 0)  # PR_SET_NAME
     except (OSError, AttributeError):
         pass
+
+
+#: Imported once by the fork server (missing modules are skipped by multiprocessing); the
+#: first ties the fork server's life to the API process.
+PRELOAD = ("service.core.forkserver_guard", "service.worker.runner", "service.inputs",
+           "service.uploads", "cascalib.formats", "cascalib.pipeline")
+
+
+def start_forkserver() -> None:
+    """Start the fork server of job and validator processes now, from this (main) thread.
+
+    It imports :data:`PRELOAD` while the API starts serving, so a process starts in
+    milliseconds; and since the kernel kills it when its parent thread ends, it must be
+    started by the thread that lives as long as the API.
+    """
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    multiprocessing.get_context("forkserver").set_forkserver_preload(list(PRELOAD))
+    forkserver.ensure_running()

@@ -127,6 +127,7 @@ def supervise(job_id: str, attempt: int, store: Store, settings: Settings) -> st
         raise
     if code == 0:
         return None
+    store.clean_work(job_id)
     with store.session() as session:
         return st.requeue_or_fail(session, job_id=job_id, attempt=attempt,
                                   reason=f"the job process died (exit code {code})",

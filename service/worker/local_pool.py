@@ -25,7 +25,7 @@ from typing import Any
 from cascalib.workers import die_with_parent
 from service import store as st
 from service.core.config import Settings
-from service.core.proc import name_process
+from service.core.proc import name_process, start_forkserver
 from service.models import utcnow
 from service.store import Store
 
@@ -38,8 +38,6 @@ _PREFIX = "local:"
 JOB_NICENESS = 10
 #: /readyz reports the pool unready when its rounds have failed for this many seconds.
 _STALLED = 10.0
-#: Imported once by the fork server (missing modules are skipped by multiprocessing).
-PRELOAD = ("service.worker.runner", "service.inputs", "cascalib.formats", "cascalib.pipeline")
 
 
 @dataclass
@@ -79,7 +77,6 @@ class LocalPool:
         self.store = store
         self.instance = uuid.uuid4().hex[:10]
         self._ctx = multiprocessing.get_context("forkserver")
-        self._ctx.set_forkserver_preload(list(PRELOAD))
         self._running: dict[str, _Running] = {}
         self._last_round = time.monotonic()
         self._wake = threading.Event()
@@ -90,10 +87,7 @@ class LocalPool:
     def start(self) -> None:
         """Recover jobs a previous server left running, then start dispatching."""
         self._recover()
-        # Start the fork server now: it imports the pipeline while the API starts serving.
-        from multiprocessing import forkserver
-
-        forkserver.ensure_running()
+        start_forkserver()
         self._thread.start()
 
     def stop(self) -> None:
@@ -140,6 +134,7 @@ class LocalPool:
                 st.requeue_or_fail(session, job_id=job_id, attempt=attempt,
                                    reason="the server stopped while the job was running",
                                    max_attempts=self.settings.max_attempts)
+                self.store.clean_work(job_id)
 
     def _loop(self) -> None:
         while not self._stopping.is_set():
@@ -168,6 +163,7 @@ class LocalPool:
                     reason=f"the worker process died (exit code {code})",
                     max_attempts=self.settings.max_attempts)
             del self._running[job_id]  # only once recorded: a failed write is retried
+            self.store.clean_work(job_id)
             if new is not None:
                 log.warning("job %s: worker died (exit code %s), now %s", job_id, code, new)
 

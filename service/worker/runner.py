@@ -147,6 +147,7 @@ def run_job(job_id: str, store: Store, progress: Progress, *,
         job_dir = store.job_dir(job_id)
         names = names or _Names(job_dir)
         progress("loading", 0.0)
+    store.clean_work(job_id)  # an earlier attempt may have been killed mid-way
     config = build_config(options)
     from cascalib.pipeline import (  # type: ignore[import-not-found,unused-ignore]
         calibrate,

@@ -215,3 +215,49 @@ def test_cancel_running_job_stops_it(kind: str, tmp_path: Path) -> None:
         dep.stop()
         if pg:
             pg.drop()
+
+
+def _descendants(pid: int) -> list[int]:
+    out = []
+    for child in _children(pid):
+        out += [child, *_descendants(child)]
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@needs_pipeline
+@pytest.mark.slow
+def test_kill_9_leaves_no_process_and_no_scratch_folder(tmp_path: Path) -> None:
+    """A server killed mid-job takes its fork server, validators and job processes with it
+    (they ran on for up to 25 s), and the restarted server removes the killed attempt's
+    scratch folders."""
+    dep, _ = build_deployment("sqlite", tmp_path, CASCALIB_MAX_UPLOAD_BYTES=str(200 * 2**20),
+                              CASCALIB_WORKERS="1")
+    try:
+        with dep.client(next_token()) as c:
+            job_id = submit(c, sim_files(tmp_path), {"seed": 0}).json()["id"]
+            deadline = time.monotonic() + 60
+            while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
+                assert time.monotonic() < deadline
+                time.sleep(0.1)
+        assert dep.server is not None
+        server = dep.server.popen.pid
+        family = _descendants(server)
+        job_dir = dep.data_dir / "jobs" / job_id
+        scratch = list(job_dir.glob("tmp*"))
+        assert _job_processes(server) and scratch
+        os.kill(server, signal.SIGKILL)  # the server alone, not its process group
+        dep.server.popen.wait()
+        time.sleep(2.0)
+        assert not [p for p in family if _alive(p)]
+        dep.start_server()  # the job is re-queued and starts again, in a new scratch folder
+        assert not [d for d in scratch if d.exists()]
+    finally:
+        dep.stop()
