@@ -23,7 +23,7 @@ from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 from sqlalchemy.types import TypeDecorator
 
-__all__ = ["ApiToken", "Base", "Job", "JobFile", "utcnow"]
+__all__ = ["ApiToken", "Base", "Job", "JobEvent", "JobFile", "utcnow"]
 
 
 def utcnow() -> datetime:
@@ -115,3 +115,19 @@ class ApiToken(Base):
     name: Mapped[str] = mapped_column(String(128), unique=True)
     token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
+class JobEvent(Base):
+    """A running total for the metrics, kept in the store so that every process (API, job
+    processes, Celery workers) adds to the same one and it outlives the jobs (retention).
+
+    ``name`` is the series (``"duration:succeeded"``, ``"queue_wait"``, ``"failed"``...);
+    ``bucket`` a histogram's upper bound (``"0.5"``, ``"+Inf"``), ``"sum"``, or ``""`` for a
+    counter.
+    """
+
+    __tablename__ = "job_events"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    bucket: Mapped[str] = mapped_column(String(16), primary_key=True)
+    value: Mapped[float] = mapped_column(Float)

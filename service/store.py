@@ -27,14 +27,16 @@ from sqlalchemy.exc import IntegrityError, InterfaceError, OperationalError
 from sqlalchemy.orm import Session, selectinload, sessionmaker
 
 from service.db import make_engine, migrate
-from service.models import ApiToken, Job, JobFile, utcnow
+from service.models import ApiToken, Job, JobEvent, JobFile, utcnow
 
 __all__ = [
     "StoredFile",
     "Store",
     "StoreUnavailable",
     "TRANSIENT",
+    "JOB_BUCKETS",
     "add_api_token",
+    "read_events",
     "cancel_job",
     "claim_job",
     "count_api_tokens",
@@ -67,6 +69,9 @@ _READY_TIMEOUT = 1.0  # s a readiness probe waits for the write lock
 class StoreUnavailable(RuntimeError):
     """The database stayed unavailable through every retry (the API answers 503)."""
 
+
+#: Upper bounds (s) of the job histograms (time queued, time running).
+JOB_BUCKETS = (1.0, 5.0, 15.0, 60.0, 300.0, 900.0, 3600.0, 14400.0)
 
 QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
     "queued", "running", "succeeded", "failed", "cancelled")
@@ -301,6 +306,35 @@ def token_known(session: Session, *, token_sha256: str) -> bool:
     return session.scalars(stmt).first() is not None
 
 
+# --- metrics: running totals in the store (every process adds to the same) -----------------
+
+def _add_events(session: Session, rows: Sequence[tuple[str, str, float]]) -> None:
+    """Add to running totals (created at their first use); the caller commits."""
+    if session.get_bind().dialect.name == "sqlite":
+        from sqlalchemy.dialects.sqlite import insert
+    else:
+        from sqlalchemy.dialects.postgresql import insert
+    stmt = insert(JobEvent).values([{"name": n, "bucket": b, "value": v} for n, b, v in rows])
+    session.execute(stmt.on_conflict_do_update(
+        index_elements=["name", "bucket"], set_={"value": JobEvent.value + stmt.excluded.value}))
+
+
+def _observe(session: Session, name: str, seconds: float) -> None:
+    """One observation of a histogram (cumulative buckets, like Prometheus's)."""
+    seconds = max(seconds, 0.0)
+    _add_events(session, [(name, f"{b:g}", 1.0) for b in JOB_BUCKETS if seconds <= b]
+                + [(name, "+Inf", 1.0), (name, "sum", seconds)])
+
+
+def _count(session: Session, name: str) -> None:
+    _add_events(session, [(name, "", 1.0)])
+
+
+def read_events(session: Session) -> dict[tuple[str, str], float]:
+    """Every running total: ``(name, bucket) -> value``."""
+    return {(e.name, e.bucket): e.value for e in session.scalars(select(JobEvent))}
+
+
 # --- worker side -------------------------------------------------------------------------------
 
 def queued_job_ids(session: Session, *, limit: int) -> list[str]:
@@ -320,10 +354,15 @@ def claim_job(session: Session, *, job_id: str, worker: str) -> int | None:
         update(Job).where(Job.id == job_id, Job.status == QUEUED)
         .values(status=RUNNING, attempts=Job.attempts + 1, worker=worker, heartbeat_at=now,
                 started_at=now, stage="loading", progress=0.0, error=None))
-    session.commit()
     if getattr(res, "rowcount", 0) != 1:
+        session.commit()
         return None
-    return int(session.scalars(select(Job.attempts).where(Job.id == job_id)).one())
+    attempt, created = session.execute(
+        select(Job.attempts, Job.created_at).where(Job.id == job_id)).one()
+    if attempt == 1:  # a retry's wait is not the client's wait for its job to start
+        _observe(session, "queue_wait", (now - created).total_seconds())
+    session.commit()
+    return int(attempt)
 
 
 def _fenced(job_id: str, attempt: int):  # type: ignore[no-untyped-def]
@@ -355,6 +394,11 @@ def finish_job(session: Session, *, job_id: str, attempt: int, status: str,
         return False
     session.add_all([JobFile(job_id=job_id, kind="output", role=f.role, path=f.path,
                              size=f.size, sha256=f.sha256) for f in outputs])
+    started = session.scalars(select(Job.started_at).where(Job.id == job_id)).one()
+    if started is not None:
+        _observe(session, f"duration:{status}", (utcnow() - started).total_seconds())
+    if status == FAILED:
+        _count(session, "failed")
     session.commit()
     return True
 
@@ -386,6 +430,8 @@ def requeue_or_fail(session: Session, *, job_id: str, attempt: int, reason: str,
         values = {"status": QUEUED, "worker": None, "stage": None, "progress": 0.0,
                   "error": None}
     res = session.execute(_fenced(job_id, attempt).values(**values))
+    if getattr(res, "rowcount", 0) == 1:
+        _count(session, "failed" if new == FAILED else "retried")
     session.commit()
     if getattr(res, "rowcount", 0) != 1:
         return None

@@ -6,7 +6,12 @@ import time
 from collections.abc import Iterable
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    Metric,
+)
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -28,9 +33,35 @@ class _JobsCollector(Collector):
         g = GaugeMetricFamily("cascalib_jobs", "Jobs in the store by state", labels=["status"])
         with self.store.session() as session:
             counts = st.count_by_status(session)
+            events = st.read_events(session)
         for status in _STATUSES:
             g.add_metric([status], counts.get(status, 0))
         yield g
+        yield from _job_events(events)
+
+
+def _buckets(events: dict[tuple[str, str], float], name: str) -> list[tuple[str, float]]:
+    return [(f"{b:g}", events.get((name, f"{b:g}"), 0.0)) for b in st.JOB_BUCKETS] + [
+        ("+Inf", events.get((name, "+Inf"), 0.0))]
+
+
+def _job_events(events: dict[tuple[str, str], float]) -> Iterable[Metric]:
+    """Job histograms and counters from the store's running totals (all processes')."""
+    wait = HistogramMetricFamily("cascalib_job_queue_wait_seconds",
+                                 "Time from submission to a job's first start")
+    wait.add_metric([], _buckets(events, "queue_wait"), events.get(("queue_wait", "sum"), 0.0))
+    run = HistogramMetricFamily("cascalib_job_duration_seconds",
+                                "Run time of a job's last attempt, by outcome",
+                                labels=["status"])
+    for status in ("succeeded", "failed"):
+        name = f"duration:{status}"
+        run.add_metric([status], _buckets(events, name), events.get((name, "sum"), 0.0))
+    failed = CounterMetricFamily("cascalib_jobs_failed", "Jobs that ended failed")
+    failed.add_metric([], events.get(("failed", ""), 0.0))
+    retried = CounterMetricFamily("cascalib_job_retries",
+                                  "Attempts re-queued after their worker died")
+    retried.add_metric([], events.get(("retried", ""), 0.0))
+    yield from (wait, run, failed, retried)
 
 
 class Metrics:

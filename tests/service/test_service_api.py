@@ -386,3 +386,31 @@ def test_keypoints_beyond_their_data_refused_early(client: httpx.Client, kind: s
     assert time.monotonic() - t0 < 5.0
     err = r.json()["errors"][0]
     assert (err["camera"], err["file"], err["field"]) == ("cam0", "cam0.json", field), err
+
+
+def _series(text: str, name: str) -> float:
+    """The value of one sample of a Prometheus text page (0 when absent)."""
+    for line in text.splitlines():
+        if line.startswith(name + " "):
+            return float(line.rsplit(" ", 1)[1])
+    return 0.0
+
+
+def test_job_histograms_and_counters(deployment: Deployment, client: httpx.Client) -> None:
+    """Queue wait and run time histograms, failure and retry counters in /metrics, summed
+    over every process that runs jobs (they live in the store)."""
+    with deployment.client(None) as anon:
+        before = anon.get("/metrics").text
+        job = wait_finished(client, submit(client).json()["id"])
+        after = anon.get("/metrics").text
+    assert job["status"] == "failed"  # the synthetic inputs fail in the single-view stage
+    status = '{status="failed"}'
+    for name, grew in [("cascalib_job_queue_wait_seconds_count", 1),
+                       (f"cascalib_job_duration_seconds_count{status}", 1),
+                       ("cascalib_jobs_failed_total", 1)]:
+        assert _series(after, name) - _series(before, name) == grew, name
+    waited = (_series(after, "cascalib_job_queue_wait_seconds_sum")
+              - _series(before, "cascalib_job_queue_wait_seconds_sum"))
+    assert 0 <= waited < 60
+    assert 'cascalib_job_duration_seconds_bucket{le="+Inf",status="failed"}' in after
+    assert "cascalib_job_retries_total" in after
