@@ -126,7 +126,8 @@ def test_killed_worker_process_retried_then_failed(local_deployment: Deployment)
         metrics = c.get("/metrics").text
     assert len(killed) == 2
     assert job["status"] == "failed" and job["attempts"] == 2
-    assert "cascalib_job_retries_total 1.0" in metrics and "cascalib_jobs_failed_total 1.0" in metrics
+    assert "cascalib_job_retries_total 1.0" in metrics
+    assert "cascalib_jobs_failed_total 1.0" in metrics
     assert job["error"] == ("the worker process died (exit code -9); "
                             "gave up after 2 attempt(s)")
 

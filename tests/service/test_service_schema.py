@@ -14,11 +14,6 @@ import pytest
 
 schemathesis = pytest.importorskip("schemathesis", reason="schemathesis not installed (dev extra)")
 from hypothesis import HealthCheck, settings  # noqa: E402
-from service_helpers import Deployment, build_deployment, next_token  # noqa: E402
-
-from service.core.config import Settings  # noqa: E402
-from service.main import create_app  # noqa: E402
-
 from schemathesis.checks import not_a_server_error  # noqa: E402
 from schemathesis.specs.openapi.checks import (  # noqa: E402
     allow_header_conformance,
@@ -28,6 +23,10 @@ from schemathesis.specs.openapi.checks import (  # noqa: E402
     response_schema_conformance,
     status_code_conformance,
 )
+from service_helpers import Deployment, build_deployment, next_token  # noqa: E402
+
+from service.core.config import Settings  # noqa: E402
+from service.main import create_app  # noqa: E402
 
 #: Response-conformance checks: a client generated from the schema must work with the server.
 CONFORMANCE = [not_a_server_error, status_code_conformance, content_type_conformance,
