@@ -1,9 +1,9 @@
 """The FastAPI application: ``create_app(settings)`` (nothing happens at import time).
 
 Start-up (the lifespan) migrates the database, refuses to run without authentication unless
-asked to, removes half-stored submissions a crash may have left, recovers jobs and starts the
-execution back-end: the embedded worker pool, or the Celery dispatcher when
-CASCALIB_BROKER_URL is set.
+asked to, recovers jobs and starts the execution back-end (the embedded worker pool, or the
+Celery dispatcher when CASCALIB_BROKER_URL is set), the upload validators and the retention
+sweeper (which also removes half-stored submissions a crash may have left).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from service.core.metrics import Metrics, MetricsMiddleware
 from service.core.problems import install_handlers, problem_openapi
 from service.core.proc import start_forkserver
 from service.store import Store
+from service.sweeper import Sweeper
 from service.validation import Validator
 
 __all__ = ["create_app"]
@@ -108,9 +109,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = prepare_store(settings)
         _warm_up()
-        swept = store.sweep_orphans()
-        if swept:
-            log.warning("removed %d half-stored submission(s) left by a crash", swept)
         if not settings.auth_enabled:
             log.warning("authentication is OFF: every client sees every job")
         dispatcher = _dispatcher(settings, store)
@@ -119,9 +117,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         validator = Validator(settings)
         app.state.cascalib = AppState(settings, store, dispatcher, metrics, validator)
         dispatcher.start()
+        sweeper = Sweeper(settings, store)
+        sweeper.start()
         try:
             yield
         finally:
+            sweeper.stop()
             validator.stop()
             dispatcher.stop()
             store.dispose()

@@ -43,6 +43,7 @@ __all__ = [
     "count_by_status",
     "create_job",
     "delete_job",
+    "expired_jobs",
     "find_job",
     "find_job_by_key",
     "finish_job",
@@ -281,6 +282,13 @@ def delete_job(session: Session, *, job_id: str) -> bool:
     session.delete(job)
     session.commit()
     return True
+
+
+def expired_jobs(session: Session, *, before: datetime, limit: int) -> list[str]:
+    """Finished jobs that ended before ``before`` (oldest first), for the retention sweep."""
+    stmt = (select(Job.id).where(Job.status.in_(FINISHED), Job.finished_at < before)
+            .order_by(Job.finished_at).limit(limit))
+    return list(session.scalars(stmt))
 
 
 def count_by_status(session: Session) -> dict[str, int]:

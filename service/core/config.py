@@ -105,6 +105,14 @@ class Settings(BaseSettings):
         default_factory=list, description="Comma-separated origins allowed by CORS."
     )
     page_limit: int = Field(default=100, ge=1, description="Largest page of GET /v1/jobs.")
+    retention_hours: float = Field(
+        default=720.0, ge=0,
+        description="Finished jobs are deleted with their files this long after they ended "
+        "(0: kept until deleted by hand).",
+    )
+    sweep_interval_seconds: float = Field(
+        default=600.0, gt=0, description="How often the retention sweep runs."
+    )
     validation_workers: int = Field(
         default=1, ge=1, le=64,
         description="Processes that parse uploads before a job is accepted (off the API's "

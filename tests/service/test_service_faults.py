@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import httpx
 import pytest
 from service_helpers import (
     Deployment,
@@ -94,10 +95,27 @@ def test_running_job_survives_a_40_s_lock(tmp_path: Path) -> None:
             while c.get(f"/v1/jobs/{job_id}").json()["status"] != "running":
                 assert time.monotonic() < deadline
                 time.sleep(0.2)
+            c.timeout = httpx.Timeout(120)  # the submission waits the lock out
             with write_lock(dep, 40.0):
                 late = submit(c)
             job = wait_finished(c, job_id, timeout=1800)
         assert late.status_code == 202, late.text
         assert job["status"] == "succeeded", job
+    finally:
+        dep.stop()
+
+
+def test_retention_deletes_finished_jobs_and_their_files(tmp_path: Path) -> None:
+    dep, _ = build_deployment("sqlite", tmp_path, CASCALIB_RETENTION_HOURS=str(2 / 3600),
+                              CASCALIB_SWEEP_INTERVAL_SECONDS="0.5", CASCALIB_WORKERS="1")
+    try:
+        with dep.client(next_token()) as c:
+            done = wait_finished(c, submit(c).json()["id"])["id"]
+            assert (dep.data_dir / "jobs" / done).is_dir()
+            deadline = time.monotonic() + 10
+            while c.get(f"/v1/jobs/{done}").status_code != 404:
+                assert time.monotonic() < deadline, "not deleted after its retention"
+                time.sleep(0.2)
+        assert not (dep.data_dir / "jobs" / done).exists()
     finally:
         dep.stop()
