@@ -115,6 +115,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         metrics = Metrics(store)
         start_forkserver()
         validator = Validator(settings)
+        validator.warm_up()
         app.state.cascalib = AppState(settings, store, dispatcher, metrics, validator)
         dispatcher.start()
         sweeper = Sweeper(settings, store)

@@ -12,9 +12,12 @@ import asyncio
 import logging
 import multiprocessing
 import os
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
+
+from starlette.concurrency import run_in_threadpool
 
 from service.core.config import Settings
 from service.core.problems import ProblemError
@@ -64,7 +67,9 @@ class Validator:
             memory, killed): the pool is renewed and the client may retry.
         """
         try:
-            await asyncio.wrap_future(self._pool.submit(_validate, sub, self._values))
+            # submit() may start a process and wait for the fork server: not in the event loop
+            future = await run_in_threadpool(self._pool.submit, _validate, sub, self._values)
+            await asyncio.wrap_future(future)
         except BrokenProcessPool:
             log.error("a validation process died; starting new ones")
             self._pool.shutdown(wait=False, cancel_futures=True)
@@ -72,6 +77,19 @@ class Validator:
             raise ProblemError(503, "the upload could not be validated (the validating "
                                "process died); retry later", headers={"Retry-After": "10"}
                                ) from None
+
+    def warm_up(self) -> None:
+        """Start the processes in the background (the fork server imports the readers first),
+        so that the first submissions do not wait for them."""
+        def start() -> None:
+            try:
+                for f in [self._pool.submit(os.getpid) for _ in range(
+                        self.settings.validation_workers)]:
+                    f.result()
+            except Exception:  # the first submission reports it
+                log.warning("upload validators did not start", exc_info=True)
+
+        threading.Thread(target=start, daemon=True, name="cascalib-validators").start()
 
     def stop(self) -> None:
         """Stop the processes (validations in progress are abandoned)."""
