@@ -318,11 +318,11 @@ def token_known(session: Session, *, token_sha256: str) -> bool:
 
 def _add_events(session: Session, rows: Sequence[tuple[str, str, float]]) -> None:
     """Add to running totals (created at their first use); the caller commits."""
-    if session.get_bind().dialect.name == "sqlite":
-        from sqlalchemy.dialects.sqlite import insert
-    else:
-        from sqlalchemy.dialects.postgresql import insert
-    stmt = insert(JobEvent).values([{"name": n, "bucket": b, "value": v} for n, b, v in rows])
+    from sqlalchemy.dialects import postgresql, sqlite
+
+    dialect = sqlite if session.get_bind().dialect.name == "sqlite" else postgresql
+    stmt: Any = dialect.insert(JobEvent).values(
+        [{"name": n, "bucket": b, "value": v} for n, b, v in rows])
     session.execute(stmt.on_conflict_do_update(
         index_elements=["name", "bucket"], set_={"value": JobEvent.value + stmt.excluded.value}))
 

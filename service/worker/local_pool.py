@@ -19,6 +19,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
+from functools import partial
 from multiprocessing.process import BaseProcess
 from typing import Any
 
@@ -99,8 +100,8 @@ class LocalPool:
         for job_id, run in list(self._running.items()):
             run.process.kill()
             run.process.join(timeout=5)
-            self.store.retrying(f"release job {job_id}", lambda session, j=job_id, r=run:
-                                st.release_job(session, job_id=j, attempt=r.attempt))
+            self.store.retrying(f"release job {job_id}", partial(
+                st.release_job, job_id=job_id, attempt=run.attempt))
         self._running.clear()
 
     def submit(self, job_id: str) -> None:
