@@ -138,6 +138,46 @@ class Proc:
         return self.log.read_text(errors="replace")[-3000:] if self.log.exists() else ""
 
 
+def children(pid: int) -> list[int]:
+    """Process ids of the children of ``pid`` (Linux /proc)."""
+    pids = []
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            pids += [int(p) for p in (task / "children").read_text().split()]
+    except OSError:
+        pass
+    return pids
+
+
+def descendants(pid: int) -> list[int]:
+    """Children, grandchildren... of ``pid``."""
+    out = []
+    for child in children(pid):
+        out += [child, *descendants(child)]
+    return out
+
+
+def _comm(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
+
+
+def forked_processes(server_pid: int, name: str = "cascalib-job") -> list[int]:
+    """Job processes of a server (or upload validators, ``name="cascalib-valid"``): the
+    children of its multiprocessing fork server, by process name."""
+    out = []
+    for pid in children(server_pid):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"forkserver" in cmd:
+            out += [p for p in children(pid) if _comm(p) == name]
+    return out
+
+
 def spawn(args: list[str], env: dict[str, str], log: Path) -> Proc:
     fh = log.open("ab")
     popen = subprocess.Popen(args, env=env, stdout=fh, stderr=subprocess.STDOUT,

@@ -12,8 +12,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from service_helpers import Deployment, build_deployment, next_token, submit
-from test_service_recovery import _job_processes
+from service_helpers import Deployment, build_deployment, forked_processes, next_token, submit
 
 
 @pytest.fixture(scope="module")
@@ -44,10 +43,10 @@ def test_jobs_and_validators_run_below_the_api(roomy: Deployment) -> None:
     with roomy.client(next_token()) as c:
         deadline = time.monotonic() + 30
         while len(seen) < 2 and time.monotonic() < deadline:
-            if not _job_processes(server):
+            if not forked_processes(server):
                 submit(c)
             for name in ("cascalib-job", "cascalib-valid"):
-                for pid in _job_processes(server, name):
+                for pid in forked_processes(server, name):
                     try:
                         seen.setdefault(name, _niceness(pid))
                     except OSError:

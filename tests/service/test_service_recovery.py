@@ -19,6 +19,8 @@ import pytest
 from service_helpers import (
     Deployment,
     build_deployment,
+    descendants,
+    forked_processes,
     needs_pipeline,
     next_token,
     sim_files,
@@ -78,37 +80,6 @@ def test_server_crash_requeues_then_gives_up(local_deployment: Deployment) -> No
                                  "gave up after 2 attempt(s)")
 
 
-def _children(pid: int) -> list[int]:
-    pids = []
-    try:
-        for task in Path(f"/proc/{pid}/task").iterdir():
-            pids += [int(p) for p in (task / "children").read_text().split()]
-    except OSError:
-        pass
-    return pids
-
-
-def _comm(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/comm").read_text().strip()
-    except OSError:
-        return ""
-
-
-def _job_processes(server_pid: int, name: str = "cascalib-job") -> list[int]:
-    """Job processes of the server (or upload validators, ``name="cascalib-valid"``): the
-    children of its multiprocessing fork server, by process name."""
-    out = []
-    for pid in _children(server_pid):
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
-        except OSError:
-            continue
-        if b"forkserver" in cmd:
-            out += [p for p in _children(pid) if _comm(p) == name]
-    return out
-
-
 def test_killed_worker_process_retried_then_failed(local_deployment: Deployment) -> None:
     dep = local_deployment
     assert dep.server is not None
@@ -117,7 +88,7 @@ def test_killed_worker_process_retried_then_failed(local_deployment: Deployment)
         job_id = submit(c).json()["id"]
         deadline = time.monotonic() + 60
         while len(killed) < 2 and time.monotonic() < deadline:
-            for pid in _job_processes(dep.server.popen.pid):
+            for pid in forked_processes(dep.server.popen.pid):
                 if pid not in killed:
                     os.kill(pid, signal.SIGKILL)
                     killed.add(pid)
@@ -209,7 +180,7 @@ def test_cancel_running_job_stops_it(kind: str, tmp_path: Path) -> None:
             assert job["status"] == "cancelled" and job["attempts"] == 1
             if kind == "sqlite":
                 assert dep.server is not None
-                assert _job_processes(dep.server.popen.pid) == []
+                assert forked_processes(dep.server.popen.pid) == []
             assert not (dep.data_dir / "jobs" / job_id / "outputs").exists()
             # The service keeps working after the cancellation.
             again = submit(c).json()["id"]
@@ -218,13 +189,6 @@ def test_cancel_running_job_stops_it(kind: str, tmp_path: Path) -> None:
         dep.stop()
         if pg:
             pg.drop()
-
-
-def _descendants(pid: int) -> list[int]:
-    out = []
-    for child in _children(pid):
-        out += [child, *_descendants(child)]
-    return out
 
 
 def _alive(pid: int) -> bool:
@@ -252,10 +216,10 @@ def test_kill_9_leaves_no_process_and_no_scratch_folder(tmp_path: Path) -> None:
                 time.sleep(0.1)
         assert dep.server is not None
         server = dep.server.popen.pid
-        family = _descendants(server)
+        family = descendants(server)
         job_dir = dep.data_dir / "jobs" / job_id
         scratch = list(job_dir.glob("tmp*"))
-        assert _job_processes(server) and scratch
+        assert forked_processes(server) and scratch
         os.kill(server, signal.SIGKILL)  # the server alone, not its process group
         dep.server.popen.wait()
         time.sleep(2.0)
