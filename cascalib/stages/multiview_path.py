@@ -20,10 +20,12 @@ from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, RefinementFailed
+from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.multiview_start import (
     MultiviewStart,
     WorldFrame,
     multiview_start,
+    reprojection_fit,
     to_world,
     world_frame,
 )
@@ -148,6 +150,10 @@ def multiview_initial(tracks: Sequence[Tracks], cfg: CalibrationConfig,
     return MultiviewInitial(Calibration(cams, world=world), dict(start.reasons), start, frame)
 
 
+#: Widest ground gate (m) of stage V's association in the multi-view path.
+WIDE_GATE_M = 3.0
+#: Stage V's rig is kept unless it explains the start's matched joints this much worse.
+START_TIE = 0.05
 #: Reprojection error (px) under which an observation counts as an inlier in the start's report.
 START_INLIER_PX = 15.0
 
@@ -181,12 +187,33 @@ def start_result(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: Calib
     return RefineResult(calib, poses, data.times, ids, quality, assoc, residuals=resid)
 
 
+def association_gate(initial: MultiviewInitial, smallest: float) -> float:
+    """Stage V's ground gate (m) for this scene: half the distance at which two people were
+    ever seen at once (their hips), at least ``smallest``, at most :data:`WIDE_GATE_M`. Stage V
+    sizes its gates for crowds; one person balancing on one leg moves the ground point of a
+    raised ankle by a metre between cameras."""
+    hips = (initial.start.points[:, MATCH_JOINTS == CANONICAL_INDEX["mid_hip"]][:, 0]
+            @ initial.frame.R.T * initial.frame.scale)[:, :2]
+    times = initial.start.groups.times
+    gaps = [np.linalg.norm(hips[a] - hips[b]) for a in range(len(times))
+            for b in range(a + 1, len(times)) if times[a] == times[b]]
+    gaps = [g for g in gaps if np.isfinite(g)]
+    if not gaps:
+        return WIDE_GATE_M
+    return float(np.clip(0.5 * np.percentile(gaps, 10), smallest, WIDE_GATE_M))
+
+
 def refine_or_start(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: CalibrationConfig,
                     rng: np.random.Generator, progress: Callable[[float], None]) -> RefineResult:
-    """Stage V from the multi-view start; the start itself where stage V fails or leaves a
-    camera out (its association by ground position needs a world it can trust)."""
-    rcfg = (cfg.refine.model_copy(update={"refine_time": False}) if cfg.synchronized
-            else cfg.refine)
+    """Stage V from the multi-view start; the start itself where stage V fails, leaves a
+    camera out, or explains the start's matched joints worse (stage V's body model assumes
+    people standing on the ground: a seated or floating figure it bends)."""
+    update: dict[str, object] = {
+        "gate_m": association_gate(initial, cfg.refine.gate_m),
+        "gate_refined_m": association_gate(initial, cfg.refine.gate_refined_m)}
+    if cfg.synchronized:
+        update["refine_time"] = False
+    rcfg = cfg.refine.model_copy(update=update)
     try:
         refined = refine(list(tracks), initial.calibration, rcfg, height=cfg.height, rng=rng,
                          progress=progress, fixed_intrinsics=tuple(cfg.known_intrinsics))
@@ -199,4 +226,13 @@ def refine_or_start(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: Ca
         return start_result(tracks, initial, cfg,
                             f"stage V could not place {', '.join(failed)}: "
                             + refined.quality[failed[0]].reason)
+    placed = [c for c in initial.start.cameras if c is not None]
+    uv = initial.start.uv[[i for i, c in enumerate(initial.start.cameras) if c is not None]]
+    before = reprojection_fit(list(initial.calibration.cameras), uv)
+    after = reprojection_fit([refined.calibration[c.name] for c in placed], uv)
+    log.info("matched joints reproject at %.2f px from the start, %.2f px from stage V",
+             before, after)
+    if after > before * (1.0 + START_TIE):
+        return start_result(tracks, initial, cfg, f"stage V explained the matched joints worse "
+                            f"({after:.2f} px against {before:.2f} px)")
     return refined

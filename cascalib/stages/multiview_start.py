@@ -41,8 +41,8 @@ from cascalib.geometry import rodrigues_to_matrix
 from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_pair
 from cascalib.stages.triangulation import triangulate
 
-__all__ = ["MultiviewStart", "PersonGroups", "join_matches", "multiview_start",
-           "FOV_PRIOR_DEG"]
+__all__ = ["MultiviewStart", "PersonGroups", "WorldFrame", "join_matches", "multiview_start",
+           "reprojection_fit", "to_world", "world_frame", "FOV_PRIOR_DEG"]
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +137,8 @@ class MultiviewStart:
         Median reprojection error per registered camera.
     fov_start_deg : float
         The field-of-view hypothesis that explained the joints best.
+    uv : ndarray, shape (C, N, 2)
+        The bundle's observations: every joint of every group (N = G x J), NaN where unseen.
     """
 
     cameras: list[Camera | None]
@@ -146,6 +148,7 @@ class MultiviewStart:
     reprojection_px: dict[str, float]
     fov_start_deg: float
     pairs: list[PairMatches] = field(default_factory=list, repr=False)
+    uv: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0, 2)), repr=False)
 
 
 def _focal_for_fov(size: tuple[int, int], fov_deg: float) -> float:
@@ -429,7 +432,15 @@ def multiview_start(views: list[NDArray[np.float64]], bases: list[Camera],
         if cam is None and names[c] not in reasons:
             reasons[names[c]] = "its joints fit no pose against the other cameras' people"
     return MultiviewStart(cams, reasons, points.reshape(-1, joints.size, 3), sub,
-                          _reprojection(cams, points, uv), fov, pairs)
+                          _reprojection(cams, points, uv), fov, pairs, uv)
+
+
+def reprojection_fit(cams: list[Camera], uv: NDArray[np.float64]) -> float:
+    """How well a rig explains observations ``uv`` (C, N, 2) of the same points: the median
+    over cameras of the median reprojection error (px) after a robust triangulation."""
+    X, err = triangulate(cams, uv)
+    per = [np.nanmedian(e) for e in err if np.isfinite(e).any()]
+    return float(np.median(per)) if per else float("inf")
 
 
 def _reprojection(cams: list[Camera | None], points: NDArray[np.float64], uv: NDArray[np.float64]
@@ -457,10 +468,12 @@ SEGMENT_FRACTIONS: dict[tuple[str, str], float] = {
 #: Pairs (lower, upper) whose direction, averaged over the people, is the world's up, in order
 #: of preference: the trunk, else the head above the shoulders (upper bodies only).
 UP_PAIRS = (("mid_hip", "neck"), ("neck", "nose"))
-#: Weight of the people's up against each level camera's (a camera counts 1).
-PEOPLE_UP_WEIGHT = 0.5
-#: Cauchy scale of a camera's tilt from level (sin of the angle: about 6 deg).
-LEVEL_SCALE = 0.1
+#: Joints whose mean stands for the body's centre of mass (the 17 COCO joints).
+BODY_CENTRE_JOINTS = np.arange(17)
+#: Passes of the stance-foot / body-centre estimate (the stance foot depends on the up).
+BALANCE_ITERATIONS = 3
+#: Standing: the hips rise above the stance foot by more than this share of the leg's length.
+STANDING_LEG_FRACTION = 0.7
 #: Least depth of a bundle point in front of a camera, as a fraction of the camera's distance
 #: from the first camera (points nearer or behind are dropped from that camera's observations).
 MIN_DEPTH_FRACTION = 0.05
@@ -495,32 +508,21 @@ def _joint(points: NDArray[np.float64], joints: NDArray[np.int64], name: str
     return points[:, where[0]] if where.size else np.full((len(points), 3), np.nan)
 
 
-def _up(points: NDArray[np.float64], joints: NDArray[np.int64], cameras: list[Camera]
-        ) -> tuple[NDArray[np.float64], str]:
-    """The world's up: the people's, corrected by the cameras' level image axes."""
-    people, source = _people_up(points, joints)
-    return _level_cameras_up(people, cameras), source
+def _up(points: NDArray[np.float64], joints: NDArray[np.int64]) -> tuple[NDArray[np.float64], str]:
+    """The world's up from the people: their trunks, or, where they stand on their legs, the
+    line from the foot they stand on to their body's centre (a body in balance holds its centre
+    of mass over its support, however it leans)."""
+    trunk, source = _trunk_up(points, joints)
+    if source != "mid_hip-neck":
+        return trunk, source
+    balance = _balance_up(points, joints, trunk)
+    if balance is not None and _standing(points, joints, balance):
+        return balance, "stance foot-body centre"
+    return trunk, source
 
 
-def _level_cameras_up(people: NDArray[np.float64], cameras: list[Camera]
-                      ) -> NDArray[np.float64]:
-    """Most cameras stand level: one image axis (x for landscape, y for portrait) is horizontal.
-    The up that is most nearly perpendicular to those axes (a Cauchy-weighted least squares, so
-    a camera mounted at a slant is outvoted), held near the people's up by
-    :data:`PEOPLE_UP_WEIGHT`."""
-    axes = np.array([c.R[0] if abs(c.R[0] @ people) < abs(c.R[1] @ people) else c.R[1]
-                     for c in cameras])
-    u, w = people, np.ones(len(axes))
-    for _ in range(10):
-        M = (axes * w[:, None]).T @ axes + PEOPLE_UP_WEIGHT * (np.eye(3) - np.outer(people, people))
-        vals, vecs = np.linalg.eigh(M)
-        u = vecs[:, 0] * np.sign(vecs[:, 0] @ people)
-        w = 1.0 / (1.0 + (axes @ u / LEVEL_SCALE) ** 2)
-    return u
-
-
-def _people_up(points: NDArray[np.float64], joints: NDArray[np.int64]
-               ) -> tuple[NDArray[np.float64], str]:
+def _trunk_up(points: NDArray[np.float64], joints: NDArray[np.int64]
+              ) -> tuple[NDArray[np.float64], str]:
     for lo, hi in UP_PAIRS:
         d = _joint(points, joints, hi) - _joint(points, joints, lo)
         d = d[np.isfinite(d).all(1)]
@@ -528,6 +530,49 @@ def _people_up(points: NDArray[np.float64], joints: NDArray[np.int64]
             u = np.median(d / np.linalg.norm(d, axis=1, keepdims=True), axis=0)
             return u / np.linalg.norm(u), f"{lo}-{hi}"
     raise ValueError("no trunk or head seen by two cameras: the up direction is unknown")
+
+
+def _stance(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArray[np.float64]
+            ) -> NDArray[np.float64]:
+    """Per group, the foot it stands on along ``up``: the lower ankle, or both ankles' middle
+    when they are at one height (within a tenth of the leg)."""
+    la, ra = _joint(points, joints, "left_ankle"), _joint(points, joints, "right_ankle")
+    zl, zr = la @ up, ra @ up
+    leg = np.nanmedian(np.linalg.norm(_joint(points, joints, "left_hip") - la, axis=1))
+    lower = np.where((zl <= zr) | ~np.isfinite(zr), 0, 1)[:, None]
+    one = np.where(lower == 0, la, ra)
+    both = np.isfinite(zl) & np.isfinite(zr) & (np.abs(zl - zr) < 0.1 * leg)
+    return np.where(both[:, None], (la + ra) / 2, one)
+
+
+def _balance_up(points: NDArray[np.float64], joints: NDArray[np.int64],
+                start: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """The median direction from the stance foot to the mean of the body's joints."""
+    body = np.isin(joints, BODY_CENTRE_JOINTS)
+    u = start
+    for _ in range(BALANCE_ITERATIONS):
+        centre = np.nanmean(points[:, body], axis=1)
+        d = centre - _stance(points, joints, u)
+        d = d[np.isfinite(d).all(1)]
+        if len(d) < MIN_UP_GROUPS:
+            return None
+        u = np.median(d / np.linalg.norm(d, axis=1, keepdims=True), axis=0)
+        u /= np.linalg.norm(u)
+    return u
+
+
+def _standing(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArray[np.float64]
+              ) -> bool:
+    """Whether the people stand on their legs along ``up``: the hips above the stance foot by
+    most of the leg's length (seated, the legs lie nearly level)."""
+    hip = _joint(points, joints, "mid_hip")
+    leg = np.nanmedian(np.linalg.norm(_joint(points, joints, "left_hip")
+                                      - _joint(points, joints, "left_knee"), axis=1)
+                       + np.linalg.norm(_joint(points, joints, "left_knee")
+                                        - _joint(points, joints, "left_ankle"), axis=1))
+    rise = (hip - _stance(points, joints, up)) @ up
+    rise = rise[np.isfinite(rise)]
+    return bool(rise.size >= MIN_UP_GROUPS and np.median(rise) > STANDING_LEG_FRACTION * leg)
 
 
 def _scale(points: NDArray[np.float64], joints: NDArray[np.int64], height: float) -> float:
@@ -545,7 +590,7 @@ def _scale(points: NDArray[np.float64], joints: NDArray[np.int64], height: float
 
 def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras: list[Camera],
                 *, height: float, ankle_height: float) -> WorldFrame:
-    """The world of a multi-view start: z up from the people and the level cameras, the ground
+    """The world of a multi-view start: z up from the people, the ground
     through the stance ankles (at ``ankle_height``), x along the first camera's view, metres
     from ``height``.
 
@@ -554,7 +599,7 @@ def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras:
     ValueError
         When neither trunk nor head, or no limb, is seen by two cameras.
     """
-    up, up_from = _up(points, joints, cameras)
+    up, up_from = _up(points, joints)
     reference = cameras[0]
     fwd = reference.R[2] - up * (reference.R[2] @ up)
     if np.linalg.norm(fwd) < 1e-3:  # looking straight down: the camera's x instead
