@@ -53,6 +53,10 @@ FOV_PRIOR_DEG = (30.0, 45.0, 60.0, 75.0, 90.0, 110.0)
 FOCAL_PRIOR_SD = 0.5
 #: Cauchy scale of the reprojection residuals as a fraction of the image diagonal.
 LOSS_SCALE = 0.004
+#: Prior sd of the radial terms k1, k2 when the lens is fitted (wide: webcams reach k1 = -0.34).
+LENS_PRIOR_SD = 0.5
+#: A fitted lens is kept when it lowers the bundle's cost by this share (a fraction).
+LENS_GAIN = 0.05
 #: Starts adjusted again with free focal lengths (the best by their held-focal cost).
 N_FINALISTS = 3
 #: Most instants put into one bundle adjustment (evenly spread).
@@ -247,10 +251,10 @@ def _pose(cam: Camera) -> gtsam.Pose3:
 
 
 def _build_bundle(cams: list[Camera | None], idx: list[int], pts: NDArray[np.int64],
-                  uv: NDArray[np.float64], free_focal: bool, log_f0: NDArray[np.float64]
-                  ) -> tuple[gtsam.NonlinearFactorGraph, int]:
-    """Reprojection factors (Cauchy), focal priors, and the gauge: the first camera's pose and
-    its distance to the second held."""
+                  uv: NDArray[np.float64], free_focal: bool, log_f0: NDArray[np.float64],
+                  lens: bool) -> tuple[gtsam.NonlinearFactorGraph, int]:
+    """Reprojection factors (Cauchy), priors on focal and radial terms, and the gauge: the first
+    camera's pose and its distance to the second held."""
     graph = gtsam.NonlinearFactorGraph()
     n_obs = 0
     for c in idx:
@@ -261,12 +265,13 @@ def _build_bundle(cams: list[Camera | None], idx: list[int], pts: NDArray[np.int
                                                gtsam.noiseModel.Isotropic.Sigma(2, 1.0))
         seen = pts[np.isfinite(uv[c, pts]).all(1)]
         for n in seen:
-            graph.add(gtsam.GeneralSFMFactor2Cal3f(uv[c, n], noise, X(c), P(int(n)), K(c)))
+            graph.add(gtsam.GeneralSFMFactor2Cal3Bundler(uv[c, n], noise, X(c), P(int(n)), K(c)))
         n_obs += seen.size
-        sd = FOCAL_PRIOR_SD if free_focal else 1e-6
         f0 = float(np.exp(log_f0[c]))
-        graph.addPriorCal3f(K(c), gtsam.Cal3f(f0, *cam.principal_point),
-                            gtsam.noiseModel.Isotropic.Sigma(1, sd * f0))
+        sd = np.array([(FOCAL_PRIOR_SD if free_focal else 1e-6) * f0,
+                       *((LENS_PRIOR_SD,) * 2 if lens else (1e-6,) * 2)])
+        graph.add(gtsam.PriorFactorCal3Bundler(K(c), _bundler(cam, f0, lens),
+                                               gtsam.noiseModel.Diagonal.Sigmas(sd)))
     first, second = cams[idx[0]], cams[idx[1]]
     assert first is not None and second is not None
     graph.add(gtsam.PriorFactorPose3(X(idx[0]), _pose(first),
@@ -275,6 +280,23 @@ def _build_bundle(cams: list[Camera | None], idx: list[int], pts: NDArray[np.int
                                      float(np.linalg.norm(first.center - second.center)),
                                      gtsam.noiseModel.Isotropic.Sigma(1, 1e-6)))
     return graph, n_obs
+
+
+def _bundler(cam: Camera, f: float, lens: bool) -> gtsam.Cal3Bundler:
+    """gtsam's focal + two radial terms of ``cam`` (the radial terms only where ``lens``)."""
+    k1, k2 = (cam.dist[0], cam.dist[1]) if lens else (0.0, 0.0)
+    return gtsam.Cal3Bundler(f, float(k1), float(k2), *cam.principal_point)
+
+
+def _pinhole_observations(cams: list[Camera | None], uv: NDArray[np.float64], lens: bool
+                          ) -> NDArray[np.float64]:
+    """``uv`` with each held lens taken out (pixels of a pinhole with the same K); a lens being
+    fitted keeps its observations as they are."""
+    out = uv.copy()
+    for c, cam in enumerate(cams):
+        if cam is not None and cam.has_distortion and not lens:
+            out[c] = cam.undistort_pixels(uv[c])
+    return out
 
 
 def _in_front(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArray[np.float64]
@@ -291,7 +313,7 @@ def _in_front(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArray[np
 
 def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArray[np.float64],
                   *, free_focal: bool, log_f0: NDArray[np.float64] | None = None,
-                  max_iterations: int = 50
+                  lens: bool = False, max_iterations: int = 50
                   ) -> tuple[list[Camera | None], NDArray[np.float64], float]:
     """Bundle adjustment of the placed cameras and the points they see (gtsam, Cauchy loss).
 
@@ -308,6 +330,9 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
         around ``log_f0``.
     log_f0 : ndarray, shape (C,), optional
         Prior centres of log f (default: the start's).
+    lens : bool
+        Fit two radial terms per camera (OpenCV's k1, k2; prior sd :data:`LENS_PRIOR_SD`
+        around the start's), replacing any lens the cameras carry.
     max_iterations : int
         Levenberg-Marquardt iterations.
 
@@ -318,17 +343,17 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
         when the solver fails (a point behind a camera).
     """
     idx = [c for c, cam in enumerate(cams) if cam is not None]
-    uv = _in_front(cams, X3, uv)
+    uv = _in_front(cams, X3, _pinhole_observations(cams, uv, lens))
     pts = np.flatnonzero(np.isfinite(X3).all(1) & (np.isfinite(uv[idx]).all(-1).sum(0) >= 2))
     start = np.log([c.focal if c is not None else 1.0 for c in cams])
     prior = start if log_f0 is None else np.asarray(log_f0)
-    graph, n_obs = _build_bundle(cams, idx, pts, uv, free_focal, prior)
+    graph, n_obs = _build_bundle(cams, idx, pts, uv, free_focal, prior, lens)
     values = gtsam.Values()
     for c in idx:
         cam = cams[c]
         assert cam is not None
         values.insert(X(c), _pose(cam))
-        values.insert(K(c), gtsam.Cal3f(cam.focal, *cam.principal_point))
+        values.insert(K(c), _bundler(cam, cam.focal, lens))
     for n in pts:
         values.insert(P(int(n)), X3[n])
     params = gtsam.LevenbergMarquardtParams()
@@ -341,9 +366,10 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
         return cams, X3, float("inf")
     out: list[Camera | None] = list(cams)
     for c in idx:
-        pose, cal = result.atPose3(X(c)), result.atCal3f(K(c))
+        pose, cal = result.atPose3(X(c)), result.atCal3Bundler(K(c))
         R = pose.rotation().matrix().T
-        out[c] = _camera(cams[c], float(cal.fx()), R, -R @ pose.translation())  # type: ignore[arg-type]
+        cam = _camera(cams[c], float(cal.fx()), R, -R @ pose.translation())  # type: ignore[arg-type]
+        out[c] = cam.with_(dist=np.r_[cal.k1(), cal.k2(), 0.0, 0.0, 0.0]) if lens else cam
     Xo = np.full_like(X3, np.nan)
     for n in pts:
         Xo[n] = result.atPoint3(P(int(n)))
@@ -427,7 +453,12 @@ def multiview_start(views: list[NDArray[np.float64]], bases: list[Camera],
         cams, points, cost = bundle_adjust(cams, points, uv, free_focal=True)
         log.info("multi-view start: from fov %.0f deg, focal free -> cost %.3g", fov, cost)
         finals.append((cost, fov, cams, points))
-    _, fov, cams, points = min(finals, key=lambda r: r[0])
+    cost, fov, cams, points = min(finals, key=lambda r: r[0])
+    if not any(b.has_distortion for b in bases):
+        with_lens = bundle_adjust(cams, points, uv, free_focal=True, lens=True)
+        log.info("multi-view start: with two radial terms -> cost %.3g", with_lens[2])
+        if with_lens[2] < cost * (1.0 - LENS_GAIN):
+            cams, points, _ = with_lens
     for c, cam in enumerate(cams):
         if cam is None and names[c] not in reasons:
             reasons[names[c]] = "its joints fit no pose against the other cameras' people"
