@@ -218,6 +218,8 @@ def main() -> int:
     p.add_argument("--backend", choices=["sqlite", "postgres", "celery"], default="sqlite")
     p.add_argument("--workers", type=int, default=2,
                    help="embedded pool size, or Celery worker concurrency")
+    p.add_argument("--validators", type=int, default=1,
+                   help="upload validator processes (CASCALIB_VALIDATION_WORKERS)")
     p.add_argument("--timeout", type=float, default=600)
     p.add_argument("--upload-mb", type=float, default=6.0,
                    help="size of each submission (two mmpose files); 0: small OpenPose zips")
@@ -235,7 +237,8 @@ def main() -> int:
                                    CASCALIB_HEARTBEAT_SECONDS="2",
                                    CASCALIB_STALE_AFTER_SECONDS="60",
                                    CASCALIB_MAX_UPLOAD_BYTES=str(512 * 2**20),
-                                   CASCALIB_MAX_PENDING_SUBMISSIONS=str(args.clients))
+                                   CASCALIB_MAX_PENDING_SUBMISSIONS=str(args.clients),
+                                   CASCALIB_VALIDATION_WORKERS=str(args.validators))
         try:
             rec, out = Recorder(), {}
             shares = [args.jobs // args.clients + (i < args.jobs % args.clients)
@@ -258,7 +261,8 @@ def main() -> int:
                   f"{args.workers} embedded workers" if args.backend != "celery"
                   else f"backend celery (1 worker, concurrency {args.workers}), "
                   f"{args.clients} clients, {args.jobs} jobs")
-            print(f"uploads of {args.upload_mb:g} MB" if half else "uploads: small zips")
+            print((f"uploads of {args.upload_mb:g} MB" if half else "uploads: small zips")
+                  + f", {args.validators} validator process(es)")
             code = report(rec, out, dep.url, elapsed, args.jobs)
             if args.memory_cases:
                 assert dep.server is not None
