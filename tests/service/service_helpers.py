@@ -383,3 +383,14 @@ def sim_files(tmp: Path) -> list[tuple[str, bytes]]:
         write_tracks(tr, path, format="native-npz")
         files.append((path.name, path.read_bytes()))
     return files
+
+
+def start_sim_job(client: httpx.Client, tmp: Path, timeout: float = 120.0) -> str:
+    """Submit the simulated "terrace" rig and wait until its calibration is under way (past
+    loading its inputs); returns the job id. The deployment needs uploads of ~100 MB."""
+    job_id = str(submit(client, sim_files(tmp), {"seed": 0}).json()["id"])
+    deadline = time.monotonic() + timeout
+    while client.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
+        assert time.monotonic() < deadline, f"job {job_id} did not start in {timeout} s"
+        time.sleep(0.1)
+    return job_id

@@ -18,7 +18,7 @@ from service_helpers import (
     build_deployment,
     needs_pipeline,
     next_token,
-    sim_files,
+    start_sim_job,
     submit,
     wait_finished,
 )
@@ -90,11 +90,7 @@ def test_running_job_survives_a_40_s_lock(tmp_path: Path) -> None:
                               CASCALIB_WORKERS="1")
     try:
         with dep.client(next_token()) as c:
-            job_id = submit(c, sim_files(tmp_path), {"seed": 0}).json()["id"]
-            deadline = time.monotonic() + 120
-            while c.get(f"/v1/jobs/{job_id}").json()["status"] != "running":
-                assert time.monotonic() < deadline
-                time.sleep(0.2)
+            job_id = start_sim_job(c, tmp_path)
             c.timeout = httpx.Timeout(120)  # the submission waits the lock out
             with write_lock(dep, 40.0):
                 late = submit(c)

@@ -24,6 +24,7 @@ from service_helpers import (
     needs_pipeline,
     next_token,
     sim_files,
+    start_sim_job,
     submit,
     wait_finished,
 )
@@ -209,11 +210,7 @@ def test_kill_9_leaves_no_process_and_no_scratch_folder(tmp_path: Path) -> None:
                               CASCALIB_WORKERS="1")
     try:
         with dep.client(next_token()) as c:
-            job_id = submit(c, sim_files(tmp_path), {"seed": 0}).json()["id"]
-            deadline = time.monotonic() + 60
-            while c.get(f"/v1/jobs/{job_id}").json()["stage"] in (None, "loading"):
-                assert time.monotonic() < deadline
-                time.sleep(0.1)
+            job_id = start_sim_job(c, tmp_path)
         assert dep.server is not None
         server = dep.server.popen.pid
         family = descendants(server)
