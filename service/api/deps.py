@@ -10,6 +10,7 @@ from typing import Annotated, Protocol
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from service import store as st
 from service.core.config import Settings
@@ -47,7 +48,8 @@ class AppState:
     pending: int = 0
 
 
-def _state(request: Request) -> AppState:
+async def _state(request: Request) -> AppState:
+    # async: a plain attribute read need not hop to a worker thread (a sync dependency does)
     state: AppState = request.app.state.cascalib
     return state
 
@@ -65,9 +67,14 @@ SessionDep = Annotated[Session, Depends(_session)]
 _bearer = HTTPBearer(auto_error=False, description="An API token (CASCALIB_API_TOKENS).")
 
 
-def _owner(state: StateDep, session: SessionDep,
-           credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> str:
-    """Owner id of the caller: SHA-256 of its token (jobs are visible to their owner only)."""
+async def _owner(state: StateDep,
+                 credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
+                 ) -> str:
+    """Owner id of the caller: SHA-256 of its token (jobs are visible to their owner only).
+
+    A configured token is checked in memory; only a token kept in the store costs a query,
+    run in a worker thread.
+    """
     if not state.settings.auth_enabled:
         return ANONYMOUS
     challenge = {"WWW-Authenticate": "Bearer"}
@@ -76,9 +83,14 @@ def _owner(state: StateDep, session: SessionDep,
                            headers=challenge)
     digest = hashlib.sha256(credentials.credentials.encode("utf-8")).hexdigest()
     # Comparing digests, not tokens: a timing difference reveals nothing usable about a token.
-    if digest in state.settings.token_owners or st.token_known(session, token_sha256=digest):
+    if digest in state.settings.token_owners or await run_in_threadpool(_stored, state, digest):
         return digest
     raise ProblemError(401, "invalid bearer token", headers=challenge)
+
+
+def _stored(state: AppState, digest: str) -> bool:
+    with state.store.session() as session:
+        return st.token_known(session, token_sha256=digest)
 
 
 TokenDep = Annotated[str, Depends(_owner)]
