@@ -82,4 +82,4 @@ def test_health_and_polls_fast_while_a_large_upload_is_parsed(roomy: Deployment)
             poller.join()
     assert r.status_code == 202, r.text
     assert len(latencies) > 20
-    assert np.percentile(latencies, 99) < 0.1 and max(latencies) < 0.3, sorted(latencies)[-5:]
+    assert np.percentile(latencies, 99) < 0.1 and max(latencies) < 0.5, sorted(latencies)[-5:]
