@@ -30,6 +30,7 @@ from cascalib.stages.multiview_path import (
     multiview_initial,
     refine_or_start,
 )
+from cascalib.stages.multiview_start import focal_range
 from cascalib.stages.refine import RefineResult, refine
 from cascalib.stages.single_view import calibrate_single_view
 from cascalib.stages.single_view_result import SingleViewResult
@@ -180,26 +181,38 @@ def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:
                          field="known_intrinsics")
 
 
+@dataclass(frozen=True)
+class _StageI:
+    """Stage I over all cameras: the cameras it decided, why it could not decide the others,
+    and its best (untrustworthy) estimate of those where it had one: advice, not a verdict."""
+
+    results: dict[str, SingleViewResult]
+    failures: dict[str, str]
+    advice: dict[str, SingleViewResult]
+
+
 def _single_view(tracks: Sequence[Tracks], cfg: CalibrationConfig, rng: np.random.Generator,
-                 progress: Progress) -> tuple[dict[str, SingleViewResult], dict[str, str]]:
-    """Stage I per camera: its results, and why it could not decide the others."""
-    results: dict[str, SingleViewResult] = {}
-    failures: dict[str, str] = {}
+                 progress: Progress) -> _StageI:
+    out = _StageI({}, {}, {})
     for i, t in enumerate(tracks):
         try:
             k = cfg.known_intrinsics.get(t.camera)
             known = None if k is None else (np.array(k.K), np.array(k.dist))
-            results[t.camera] = calibrate_single_view(t, cfg.single_view, height=cfg.height,
-                                                      rng=rng, known_intrinsics=known)
-            log.info("stage I %s", results[t.camera].summary())
+            out.results[t.camera] = calibrate_single_view(t, cfg.single_view, height=cfg.height,
+                                                          rng=rng, known_intrinsics=known)
+            log.info("stage I %s", out.results[t.camera].summary())
         except EstimationFailed as exc:
-            failures[t.camera] = str(exc)
+            out.failures[t.camera] = str(exc)
+            partial = getattr(exc, "partial", None)
+            if isinstance(partial, SingleViewResult):
+                out.advice[t.camera] = partial
             log.info("stage I %s: %s", t.camera, exc)
         progress("single_view", (i + 1) / len(tracks))
-    return results, failures
+    return out
 
 
 def _stage_i_failed(failures: dict[str, str], n: int, why: str) -> EstimationFailed:
+    """Stage I's refusals, when nothing can stand in for them."""
     return EstimationFailed(f"single-view calibration failed for {len(failures)} of {n} cameras "
                             f"and {why}:\n  " + "\n  ".join(failures.values()),
                             field="single_view")
@@ -220,6 +233,48 @@ def _synchronized(calib: Calibration, tracks: Sequence[Tracks]) -> Calibration:
     cams = [c.with_(time_offset=0.0, time_rate=fps_ref / (t.fps or fps_ref))
             for c, t in zip(calib.cameras, tracks, strict=True)]
     return Calibration(cams, calib.reference_camera, dict(calib.quality), calib.world)
+
+
+def plane_camera(result: SingleViewResult) -> Camera:
+    """Stage I's camera in its plane frame, its focal length kept within the field-of-view
+    prior (an undecided camera's estimate can be anywhere: 29686 px on a 1088 px image)."""
+    cam = result.to_camera()
+    lo, hi = focal_range(cam.image_size)
+    f = float(np.clip(cam.focal, lo, hi))
+    K = cam.K.copy()
+    K[0, 0] *= f / cam.focal
+    K[1, 1] *= f / cam.focal
+    return cam.with_(K=K)
+
+
+def _stages_ii_iv(tracks: Sequence[Tracks], cfg: CalibrationConfig,
+                  plane: dict[str, SingleViewResult], rng: np.random.Generator,
+                  progress: Callable[[float], None]) -> AlignmentResult:
+    plane_cams = _apply_known([plane_camera(plane[t.camera]) for t in tracks], cfg)
+    return align_cameras(list(tracks), plane_cams, cfg.align, reference=0, rng=rng,
+                         progress=progress, height=cfg.height,
+                         fixed_intrinsics=tuple(cfg.known_intrinsics))
+
+
+def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
+           rng: np.random.Generator, progress: Callable[[float], None]
+           ) -> AlignmentResult | MultiviewInitial:
+    """Stage V's start: stages II-IV where stage I decided every camera; else the multi-view
+    start, on the known clocks or on the clocks of stages II-IV run from stage I's advice."""
+    if not stage_i.failures:
+        return _stages_ii_iv(tracks, cfg, stage_i.results, rng, progress)
+    hints = {n: r.to_camera().focal for n, r in stage_i.results.items()}
+    clocks = known_clocks(tracks, cfg.synchronized)
+    if clocks is None:
+        without = [n for n in stage_i.failures if n not in stage_i.advice]
+        if without:
+            raise _stage_i_failed({n: stage_i.failures[n] for n in without}, len(tracks),
+                                  "the clocks are unknown (give --synchronized, or timestamps "
+                                  "on one clock, so that the multi-view start can replace it)")
+        rough = _stages_ii_iv(tracks, cfg, {**stage_i.advice, **stage_i.results}, rng, progress)
+        clocks = [(c.time_offset, c.time_rate) for c in rough.calibration]
+        hints = {c.name: c.focal for c in rough.calibration}
+    return multiview_initial(tracks, cfg, hints, clocks, rng)
 
 
 def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
@@ -256,30 +311,20 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    single, failures = _single_view(tracks, cfg, rng, report)
+    stage_i = _single_view(tracks, cfg, rng, report)
     timings["single_view"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     report("sync", 0.0)
+    aligned = _start(tracks, cfg, stage_i, rng, lambda f: report("sync", f))
     left_out: dict[str, str] = {}
-    aligned: AlignmentResult | MultiviewInitial
-    if not failures:  # stages II-IV from every camera's ground plane
-        plane_cams = _apply_known([single[t.camera].to_camera() for t in tracks], cfg)
-        aligned = align_cameras(tracks, plane_cams, cfg.align, reference=0, rng=rng,
-                                progress=lambda f: report("sync", f), height=cfg.height,
-                                fixed_intrinsics=tuple(cfg.known_intrinsics))
+    if isinstance(aligned, MultiviewInitial):
+        left_out = aligned.left_out
+        tracks = [t for t in tracks if t.camera in aligned.calibration.names]
         initial = aligned.calibration
-        if cfg.synchronized:
-            initial = _synchronized(initial, tracks)
-    else:  # the multi-view start: the joints as point matches, on known clocks
-        clocks = known_clocks(tracks, cfg.synchronized)
-        if clocks is None:
-            raise _stage_i_failed(failures, len(tracks), "the clocks are unknown, so the "
-                                  "multi-view start cannot replace it (give --synchronized, or "
-                                  "timestamps on one clock)")
-        aligned = multiview_initial(tracks, cfg, single, clocks, rng)
-        initial, left_out = aligned.calibration, aligned.left_out
-        tracks = [t for t in tracks if t.camera in initial.names]
+    else:
+        initial = _synchronized(aligned.calibration, tracks) if cfg.synchronized else \
+            aligned.calibration
     report("sync", 1.0)
     timings["sync"] = time.perf_counter() - t0
 
@@ -305,5 +350,5 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     calibration = refined.calibration
     if left_out:
         calibration.quality["left_out"] = dict(left_out)
-    return CalibrationResult(calibration, poses, single, aligned, refined, cfg, tracks, timings,
-                             left_out=left_out, stage_i_advice=failures)
+    return CalibrationResult(calibration, poses, stage_i.results, aligned, refined, cfg, tracks,
+                             timings, left_out=left_out, stage_i_advice=stage_i.failures)

@@ -33,7 +33,6 @@ from cascalib.stages.quality import CameraQuality
 from cascalib.stages.reconstruct import poses_by_slot, prepare, reconstruct, views_at
 from cascalib.stages.refine import refine
 from cascalib.stages.refine_result import RefineResult
-from cascalib.stages.single_view_result import SingleViewResult
 from cascalib.tracks import Tracks
 
 __all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "refine_or_start",
@@ -115,10 +114,12 @@ def _rebase_clocks(cams: list[Camera]) -> list[Camera]:
 
 
 def multiview_initial(tracks: Sequence[Tracks], cfg: CalibrationConfig,
-                      single: dict[str, SingleViewResult],
-                      clocks: list[tuple[float, float]], rng: np.random.Generator
-                      ) -> MultiviewInitial:
+                      focal_hints: dict[str, float], clocks: list[tuple[float, float]],
+                      rng: np.random.Generator) -> MultiviewInitial:
     """Place the cameras from the people's joints and put them in a metric, z-up world.
+
+    ``focal_hints`` (px, by camera) are tried as one more start beside the field-of-view sweep;
+    ``clocks`` are each camera's (time offset, rate) on the first camera's clock.
 
     Raises
     ------
@@ -129,9 +130,8 @@ def multiview_initial(tracks: Sequence[Tracks], cfg: CalibrationConfig,
     bases = _bases(tracks, cfg, clocks)
     data = prepare(list(tracks), Calibration(bases))
     views = views_at(data, bases)
-    hints = [float(single[t.camera].to_camera().focal) if t.camera in single
-             else (bases[i].focal if t.camera in cfg.known_intrinsics else None)
-             for i, t in enumerate(tracks)]
+    hints = [focal_hints.get(t.camera, bases[i].focal if t.camera in cfg.known_intrinsics
+                             else None) for i, t in enumerate(tracks)]
     start = multiview_start(views, bases, rng, joints=MATCH_JOINTS, focal_hints=hints)
     placed = [c for c in start.cameras if c is not None]
     if len(placed) < 2:

@@ -42,7 +42,7 @@ from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_p
 from cascalib.stages.triangulation import triangulate
 
 __all__ = ["MultiviewStart", "PersonGroups", "WorldFrame", "join_matches", "multiview_start",
-           "reprojection_fit", "to_world", "world_frame", "FOV_PRIOR_DEG"]
+           "reprojection_fit", "to_world", "world_frame", "focal_range", "FOV_PRIOR_DEG"]
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +53,9 @@ FOV_PRIOR_DEG = (30.0, 45.0, 60.0, 75.0, 90.0, 110.0)
 FOCAL_PRIOR_SD = 0.5
 #: Cauchy scale of the reprojection residuals as a fraction of the image diagonal.
 LOSS_SCALE = 0.004
-#: Prior sd of the radial terms k1, k2 when the lens is fitted (wide: webcams reach k1 = -0.34).
-LENS_PRIOR_SD = 0.5
+#: Prior sd of the radial term k1 when the lens is fitted (webcams reach k1 = -0.34); k2 is held
+#: at 0: one person's joints cannot tell the two apart.
+LENS_PRIOR_SD = 0.3
 #: A fitted lens is kept when it lowers the bundle's cost by this share (a fraction).
 LENS_GAIN = 0.05
 #: Starts adjusted again with free focal lengths (the best by their held-focal cost).
@@ -157,6 +158,11 @@ class MultiviewStart:
 
 def _focal_for_fov(size: tuple[int, int], fov_deg: float) -> float:
     return float(np.hypot(*size) / (2.0 * np.tan(np.radians(fov_deg) / 2.0)))
+
+
+def focal_range(size: tuple[int, int]) -> tuple[float, float]:
+    """Least and largest focal length (px) of the field-of-view prior for an image ``size``."""
+    return _focal_for_fov(size, max(FOV_PRIOR_DEG)), _focal_for_fov(size, min(FOV_PRIOR_DEG))
 
 
 def _camera(base: Camera, f: float, R: NDArray[np.float64], t: NDArray[np.float64]) -> Camera:
@@ -269,7 +275,7 @@ def _build_bundle(cams: list[Camera | None], idx: list[int], pts: NDArray[np.int
         n_obs += seen.size
         f0 = float(np.exp(log_f0[c]))
         sd = np.array([(FOCAL_PRIOR_SD if free_focal else 1e-6) * f0,
-                       *((LENS_PRIOR_SD,) * 2 if lens else (1e-6,) * 2)])
+                       LENS_PRIOR_SD if lens else 1e-6, 1e-6])
         graph.add(gtsam.PriorFactorCal3Bundler(K(c), _bundler(cam, f0, lens),
                                                gtsam.noiseModel.Diagonal.Sigmas(sd)))
     first, second = cams[idx[0]], cams[idx[1]]
@@ -283,9 +289,9 @@ def _build_bundle(cams: list[Camera | None], idx: list[int], pts: NDArray[np.int
 
 
 def _bundler(cam: Camera, f: float, lens: bool) -> gtsam.Cal3Bundler:
-    """gtsam's focal + two radial terms of ``cam`` (the radial terms only where ``lens``)."""
-    k1, k2 = (cam.dist[0], cam.dist[1]) if lens else (0.0, 0.0)
-    return gtsam.Cal3Bundler(f, float(k1), float(k2), *cam.principal_point)
+    """gtsam's focal and radial terms of ``cam`` (k1 only where ``lens``, k2 = 0)."""
+    k1 = cam.dist[0] if lens else 0.0
+    return gtsam.Cal3Bundler(f, float(k1), 0.0, *cam.principal_point)
 
 
 def _pinhole_observations(cams: list[Camera | None], uv: NDArray[np.float64], lens: bool
@@ -331,8 +337,8 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
     log_f0 : ndarray, shape (C,), optional
         Prior centres of log f (default: the start's).
     lens : bool
-        Fit two radial terms per camera (OpenCV's k1, k2; prior sd :data:`LENS_PRIOR_SD`
-        around the start's), replacing any lens the cameras carry.
+        Fit a radial term per camera (OpenCV's k1; prior sd :data:`LENS_PRIOR_SD` around the
+        start's), replacing any lens the cameras carry.
     max_iterations : int
         Levenberg-Marquardt iterations.
 
@@ -456,7 +462,7 @@ def multiview_start(views: list[NDArray[np.float64]], bases: list[Camera],
     cost, fov, cams, points = min(finals, key=lambda r: r[0])
     if not any(b.has_distortion for b in bases):
         with_lens = bundle_adjust(cams, points, uv, free_focal=True, lens=True)
-        log.info("multi-view start: with two radial terms -> cost %.3g", with_lens[2])
+        log.info("multi-view start: with a radial term -> cost %.3g", with_lens[2])
         if with_lens[2] < cost * (1.0 - LENS_GAIN):
             cams, points, _ = with_lens
     for c, cam in enumerate(cams):
@@ -501,6 +507,9 @@ SEGMENT_FRACTIONS: dict[tuple[str, str], float] = {
 UP_PAIRS = (("mid_hip", "neck"), ("neck", "nose"))
 #: Joints whose mean stands for the body's centre of mass (the 17 COCO joints).
 BODY_CENTRE_JOINTS = np.arange(17)
+#: People lean when their trunks' up and their balance's up differ by more than this (deg); the
+#: trunks are the better up of people walking upright (0.2 deg on the simulator, against 1.4).
+LEAN_DEG = 10.0
 #: Passes of the stance-foot / body-centre estimate (the stance foot depends on the up).
 BALANCE_ITERATIONS = 3
 #: Standing: the hips rise above the stance foot by more than this share of the leg's length.
@@ -540,14 +549,15 @@ def _joint(points: NDArray[np.float64], joints: NDArray[np.int64], name: str
 
 
 def _up(points: NDArray[np.float64], joints: NDArray[np.int64]) -> tuple[NDArray[np.float64], str]:
-    """The world's up from the people: their trunks, or, where they stand on their legs, the
-    line from the foot they stand on to their body's centre (a body in balance holds its centre
-    of mass over its support, however it leans)."""
+    """The world's up from the people: their trunks; or, where they stand on their legs and lean
+    (the trunks more than :data:`LEAN_DEG` off), the line from the foot they stand on to their
+    body's centre: a body in balance holds its centre of mass over its support."""
     trunk, source = _trunk_up(points, joints)
     if source != "mid_hip-neck":
         return trunk, source
     balance = _balance_up(points, joints, trunk)
-    if balance is not None and _standing(points, joints, balance):
+    if (balance is not None and np.degrees(np.arccos(np.clip(balance @ trunk, -1, 1))) > LEAN_DEG
+            and _standing(points, joints, balance)):
         return balance, "stance foot-body centre"
     return trunk, source
 
@@ -639,10 +649,10 @@ def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras:
     R = np.stack([x, np.cross(up, x), up])
     s = _scale(points, joints, height)
     P = points.reshape(-1, 3) @ R.T * s
-    ankles = np.r_[_joint(points, joints, "left_ankle"), _joint(points, joints, "right_ankle")]
-    az = (ankles[np.isfinite(ankles).all(1)] @ R.T * s)[:, 2]
+    stance = _stance(points, joints, up)
+    az = (stance[np.isfinite(stance).all(1)] @ R.T * s)[:, 2]
     ground = az.size >= MIN_UP_GROUPS
-    z0 = (np.percentile(az, 5) - ankle_height) if ground else float(np.nanmin(P[:, 2]))
+    z0 = (np.median(az) - ankle_height) if ground else float(np.nanmin(P[:, 2]))
     hips = _joint(points, joints, "mid_hip") @ R.T * s
     hips = hips[np.isfinite(hips).all(1)]
     centre = np.median(hips if len(hips) else P[np.isfinite(P).all(1)], axis=0)
