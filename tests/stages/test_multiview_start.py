@@ -9,6 +9,7 @@ import pytest
 
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera, look_at
+from cascalib.config import CalibrationConfig
 from cascalib.metrics import compare_calibrations
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.multiview_pairs import match_pair
@@ -139,7 +140,6 @@ def test_known_clocks_come_from_sync_or_one_files_timestamps() -> None:
 @pytest.mark.skipif(not DATA.is_dir(), reason=f"real recordings not found at {DATA}")
 def test_pose2sim_multi_person_is_calibrated_where_stage_i_refuses_every_camera() -> None:
     import cascalib
-    from cascalib.config import CalibrationConfig
     from cascalib.formats import load_calibration
     from cascalib.session import load_session
 
@@ -154,3 +154,57 @@ def test_pose2sim_multi_person_is_calibrated_where_stage_i_refuses_every_camera(
     assert err.focal_error_pct_max < 5.0
     assert err.pairwise_rotation_error_deg_median < 2.0
     assert res.warnings()
+
+
+def _refusing(cfg: CalibrationConfig) -> CalibrationConfig:
+    """``cfg`` with stage I refusing every focal length (its interval limit 0.1 %)."""
+    sv = cfg.single_view.model_copy(update={"max_focal_uncertainty": 0.001})
+    return cfg.model_copy(update={"single_view": sv})
+
+
+def test_unknown_clocks_and_no_stage_i_estimate_is_refused_naming_the_camera() -> None:
+    import cascalib
+    from cascalib.errors import EstimationFailed
+    from cascalib.simulate import simulate
+
+    tracks = simulate("terrace", seed=0, duration_s=10.0, **{"people.n_persons": 2}).tracks
+    kp = tracks[1].keypoints.copy()
+    kp[:, :, 5:] = np.nan  # cam1 sees heads only: stage I has nothing to estimate from
+    tracks[1] = tracks[1].with_(keypoints=kp)
+    with pytest.raises(EstimationFailed, match="clocks are unknown") as err:
+        cascalib.calibrate(tracks, _refusing(CalibrationConfig()))
+    assert "cam1" in str(err.value)
+
+
+@pytest.mark.slow
+def test_stage_i_advice_and_the_multi_view_start_recover_an_unsynchronised_rig() -> None:
+    import cascalib
+    from cascalib.simulate import simulate
+
+    scene = simulate("terrace", seed=3, duration_s=40.0, **{"people.n_persons": 4})
+    res = cascalib.calibrate(scene.tracks, _refusing(CalibrationConfig(seed=1)))
+    assert len(res.stage_i_advice) == 4 and res.warnings()
+    s = compare_calibrations(res.calibration, scene.truth).summary
+    assert s.rotation_error_deg_median < 0.5 and s.rotation_error_deg_max < 1.0
+    assert s.focal_error_pct_max < 2.0
+    assert s.time_offset_error_frames_max < 0.2
+    assert all(q.verdict == "accepted" for q in res.refinement.quality.values())
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"real recordings not found at {DATA}")
+def test_pose2sim_single_person_balancing_on_one_leg_is_calibrated() -> None:
+    import cascalib
+    from cascalib.formats import load_calibration
+    from cascalib.session import load_session
+
+    root = DATA / "pose2sim_demo"
+    tracks = load_session([root / f"single_person/pose/cam0{i}_json" for i in range(1, 5)],
+                          image_size="1088x1920", fps=60)
+    res = cascalib.calibrate(tracks, CalibrationConfig(synchronized=True))
+    ref = load_calibration(root / "Calib.qca.txt")
+    err = compare_calibrations(res.calibration, ref, ground=False,
+                               mapping={f"cam0{i}": f"cam_0{i}" for i in range(1, 5)}).summary
+    assert len(res.calibration) == 4
+    assert err.focal_error_pct_median < 5.0
+    assert err.pairwise_rotation_error_deg_median < 2.0
