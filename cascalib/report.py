@@ -82,6 +82,15 @@ def reprojection_errors(result: CalibrationResult, max_groups: int | None = HIST
     return {cam.name: err[:, c].ravel() for c, cam in enumerate(result.calibration)}
 
 
+def _warnings(result: CalibrationResult) -> str:
+    """The result's warnings (cameras left out, stage I replaced, no ground) as a list."""
+    items = result.warnings()
+    if not items:
+        return ""
+    return ("<h2>Warnings</h2><ul>"
+            + "".join(f"<li class='suspicious'>{html.escape(w)}</li>" for w in items) + "</ul>")
+
+
 def _camera_table(result: CalibrationResult) -> str:
     head = ("camera", "image", "f [px]", "&sigma;f", "c [px]", "k1, k2, p1, p2, k3",
             "position x, y, z [m]", "&sigma; rot [deg] / pos [cm]", "offset [frames]", "rate",
@@ -165,7 +174,7 @@ def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
              f"<b>{html.escape(str(result.calibration.reference_camera))}</b> &middot; "
              f"person height prior {result.config.height:.2f} m &middot; run time "
              f"{sum(result.timings.values()):.1f} s</p>",
-             "<h2>Cameras</h2>", _camera_table(result)]
+             _warnings(result), "<h2>Cameras</h2>", _camera_table(result)]
     section = None
     for i, (sec, caption, fig) in enumerate(_stage_figures(result)):
         if sec != section:
