@@ -247,10 +247,11 @@ def plane_camera(result: SingleViewResult) -> Camera:
     return cam.with_(K=K)
 
 
-def _stages_ii_iv(tracks: Sequence[Tracks], cfg: CalibrationConfig,
-                  plane: dict[str, SingleViewResult], rng: np.random.Generator,
-                  progress: Callable[[float], None]) -> AlignmentResult:
-    plane_cams = _apply_known([plane_camera(plane[t.camera]) for t in tracks], cfg)
+def _stages_ii_iv(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
+                  rng: np.random.Generator, progress: Callable[[float], None]) -> AlignmentResult:
+    """Stages II-IV from stage I's cameras, its advice standing in for the undecided ones."""
+    plane_cams = _apply_known([stage_i.results[t.camera].to_camera() if t.camera in stage_i.results
+                               else plane_camera(stage_i.advice[t.camera]) for t in tracks], cfg)
     return align_cameras(list(tracks), plane_cams, cfg.align, reference=0, rng=rng,
                          progress=progress, height=cfg.height,
                          fixed_intrinsics=tuple(cfg.known_intrinsics))
@@ -262,7 +263,7 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
     """Stage V's start: stages II-IV where stage I decided every camera; else the multi-view
     start, on the known clocks or on the clocks of stages II-IV run from stage I's advice."""
     if not stage_i.failures:
-        return _stages_ii_iv(tracks, cfg, stage_i.results, rng, progress)
+        return _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
     hints = {n: r.to_camera().focal for n, r in stage_i.results.items()}
     clocks = known_clocks(tracks, cfg.synchronized)
     if clocks is None:
@@ -271,7 +272,7 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
             raise _stage_i_failed({n: stage_i.failures[n] for n in without}, len(tracks),
                                   "the clocks are unknown (give --synchronized, or timestamps "
                                   "on one clock, so that the multi-view start can replace it)")
-        rough = _stages_ii_iv(tracks, cfg, {**stage_i.advice, **stage_i.results}, rng, progress)
+        rough = _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
         clocks = [(c.time_offset, c.time_rate) for c in rough.calibration]
         hints = {c.name: c.focal for c in rough.calibration}
     return multiview_initial(tracks, cfg, hints, clocks, rng)
