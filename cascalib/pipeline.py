@@ -260,12 +260,20 @@ def _stages_ii_iv(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _St
 def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
            rng: np.random.Generator, progress: Callable[[float], None]
            ) -> AlignmentResult | MultiviewInitial:
-    """Stage V's start: stages II-IV where stage I decided every camera; else the multi-view
-    start, on the known clocks or on the clocks of stages II-IV run from stage I's advice."""
-    if not stage_i.failures:
-        return _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
+    """Stage V's start: stages II-IV where stage I decided every camera; else, or where stages
+    II-IV cannot tie the cameras together (nobody walks), the multi-view start, on the known
+    clocks or on the clocks of stages II-IV run from stage I's advice."""
     hints = {n: r.to_camera().focal for n, r in stage_i.results.items()}
     clocks = known_clocks(tracks, cfg.synchronized)
+    if not stage_i.failures:
+        try:
+            return _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
+        except EstimationFailed as exc:
+            if clocks is None:
+                raise
+            log.warning("stages II-IV: %s; the cameras are placed from the people's joints "
+                        "instead", exc)
+            return multiview_initial(tracks, cfg, hints, clocks, rng)
     if clocks is None:
         without = [n for n in stage_i.failures if n not in stage_i.advice]
         if without:

@@ -15,6 +15,8 @@ crowd              4       15       12 x 12     25                   occlusion, 
 security           4       6        15 x 15     25 / 30, drift       steep views, distortion
 sports             6       12       40 x 20     50 / 60              far, small people
 phones             4       3        6 x 6       30 / 60 / 29.97      portrait, drift, late start
+one_spot           4       1        1 x 1       60, synchronised     one person in one spot, 12 s
+desk               4       1        1 x 1       30, synchronised     upper bodies close up, barrel
 clean              4       4        10 x 10     25                   perfect detector (tests)
 =================  ======  =======  ==========  ===================  ===========================
 
@@ -113,6 +115,28 @@ PRESETS: dict[str, SceneConfig] = {
                             max_offset_s=5.0,
                             drift_sd=5e-5, late_start_prob=0.3, early_stop_prob=0.3,
                             late_max_s=8.0),
+        detector=REALISTIC_DETECTOR),
+    "one_spot": SceneConfig(
+        description="One person turning and stepping in one spot for 12 s, seen by 4 portrait "
+        "cameras nearly level at 1.6-2.0 m, 60 fps, synchronised (Pose2Sim's demo)",
+        duration_s=12,
+        people=PeopleConfig(n_persons=1, area=(1.0, 1.0), speed_range=(0.2, 0.4),
+                            pause_prob=0.9, turn_prob=1.0, walk_mean_s=1.0),
+        rig=RigConfig(n_cameras=4, height_range=(1.6, 2.0), distance_range=(3.0, 5.0),
+                      target_height=1.0, fov_range_deg=(55, 70), image_sizes=((1920, 1080),),
+                      portrait_prob=1.0),
+        timing=TimingConfig(fps=(60.0,), max_offset_s=0.0),
+        detector=REALISTIC_DETECTOR),
+    "desk": SceneConfig(
+        description="One person in one spot 1.2-1.8 m from 4 webcams with barrel distortion: "
+        "the legs fall outside the images; 30 fps, 9 s, synchronised (caliscope's session)",
+        duration_s=9,
+        people=PeopleConfig(n_persons=1, area=(0.6, 0.6), speed_range=(0.1, 0.2),
+                            pause_prob=1.0, turn_prob=0.5, walk_mean_s=0.5, actions=()),
+        rig=RigConfig(n_cameras=4, height_range=(1.3, 1.7), distance_range=(1.2, 1.8),
+                      target_height=1.35, fov_range_deg=(70, 90), image_sizes=((1280, 720),),
+                      radial_distortion=0.3, roll_sd_deg=3.0),
+        timing=TimingConfig(fps=(30.0,), max_offset_s=0.0),
         detector=REALISTIC_DETECTOR),
     "clean": SceneConfig(
         description="Terrace rig with a perfect detector (projected truth): for tests",

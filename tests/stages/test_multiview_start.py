@@ -208,3 +208,29 @@ def test_pose2sim_single_person_balancing_on_one_leg_is_calibrated() -> None:
     assert len(res.calibration) == 4
     assert err.focal_error_pct_median < 5.0
     assert err.pairwise_rotation_error_deg_median < 2.0
+
+
+@pytest.mark.slow
+def test_one_person_in_one_spot_is_calibrated_though_nobody_walks() -> None:
+    import cascalib
+    from cascalib.simulate import simulate
+
+    scene = simulate("one_spot", seed=0)
+    res = cascalib.calibrate(scene.tracks, CalibrationConfig(synchronized=True))
+    s = compare_calibrations(res.calibration, scene.truth, ground=False).summary
+    assert len(res.calibration) == 4
+    assert s.pairwise_rotation_error_deg_median < 1.5 and s.focal_error_pct_max < 3.0
+
+
+@pytest.mark.slow
+def test_upper_bodies_at_a_desk_give_every_camera_and_say_the_world_has_no_ground() -> None:
+    import cascalib
+    from cascalib.simulate import simulate
+
+    scene = simulate("desk", seed=0)
+    res = cascalib.calibrate(scene.tracks, CalibrationConfig(synchronized=True))
+    assert len(res.calibration) == 4 and not res.left_out
+    assert "ground z=0" not in res.calibration.world
+    assert any("no feet" in w for w in res.warnings())
+    s = compare_calibrations(res.calibration, scene.truth, ground=False).summary
+    assert s.pairwise_rotation_error_deg_median < 5.0
