@@ -155,6 +155,9 @@ class JobPublic(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     error: str | None = Field(default=None, description="Why the job failed.")
+    warnings: list[str] = Field(
+        default_factory=list, description="What a succeeded job could not determine: cameras "
+        "left out (with the reason), stage I replaced by the multi-view start, no ground seen.")
     links: JobLinks
 
 

@@ -391,10 +391,13 @@ def update_progress(session: Session, *, job_id: str, attempt: int, stage: str |
 
 
 def finish_job(session: Session, *, job_id: str, attempt: int, status: str,
-               error: str | None = None, outputs: Sequence[StoredFile] = ()) -> bool:
-    """Move a running job to a terminal state and record its outputs, in one transaction."""
+               error: str | None = None, outputs: Sequence[StoredFile] = (),
+               warnings: Sequence[str] = ()) -> bool:
+    """Move a running job to a terminal state and record its outputs and warnings, in one
+    transaction."""
     res = session.execute(_fenced(job_id, attempt).values(
         status=status, error=error, finished_at=utcnow(), worker=None,
+        warnings=list(warnings) or None,
         progress=1.0 if status == SUCCEEDED else Job.progress,
         stage="done" if status == SUCCEEDED else Job.stage))
     if getattr(res, "rowcount", 0) != 1:

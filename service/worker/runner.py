@@ -124,8 +124,10 @@ def _save_outputs(result: Any, job_dir: Path) -> list[StoredFile]:
 
 
 def run_job(job_id: str, store: Store, progress: Progress, *,
-            limits: ZipLimits | None = None, names: _Names | None = None) -> list[StoredFile]:
-    """Calibrate one job from its stored inputs; returns the output files written.
+            limits: ZipLimits | None = None, names: _Names | None = None
+            ) -> tuple[list[StoredFile], list[str]]:
+    """Calibrate one job from its stored inputs; returns the output files written and the
+    result's warnings (what could not be determined).
 
     Raises
     ------
@@ -157,7 +159,7 @@ def run_job(job_id: str, store: Store, progress: Progress, *,
         tracks = _load_tracks(job, job_dir, Path(tmp), limits, names)
         result = calibrate(tracks, config, progress=progress)
     progress("saving", 1.0)
-    return _save_outputs(result, job_dir)
+    return _save_outputs(result, job_dir), [names.clean(w) for w in result.warnings()]
 
 
 class _Reporter:
@@ -222,11 +224,13 @@ def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float
     A cancelled job stops at its next progress report; the back-ends also kill its process at
     once (it runs in a process of its own in both).
     """
-    status, error, outputs = st.FAILED, None, []
+    status, error = st.FAILED, None
+    outputs: list[StoredFile] = []
+    warnings: list[str] = []
     names = _Names(store.job_dir(job_id))
     with _Reporter(store, job_id, attempt, heartbeat) as reporter:
         try:
-            outputs = run_job(job_id, store, reporter, limits=limits, names=names)
+            outputs, warnings = run_job(job_id, store, reporter, limits=limits, names=names)
             status = st.SUCCEEDED
         except JobCancelled:
             status = st.CANCELLED
@@ -243,7 +247,7 @@ def execute_claimed(job_id: str, attempt: int, store: Store, *, heartbeat: float
         return status
     if not store.retrying(f"record the end of job {job_id}", lambda session: st.finish_job(
             session, job_id=job_id, attempt=attempt, status=status, error=error,
-            outputs=outputs)):
+            outputs=outputs, warnings=warnings)):
         log.info("job %s attempt %d finished but was cancelled meanwhile", job_id, attempt)
         return st.CANCELLED
     log.info("job %s attempt %d: %s%s", job_id, attempt, status, f" ({error})" if error else "")

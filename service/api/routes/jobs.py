@@ -60,7 +60,8 @@ def to_public(job: Job) -> JobPublic:
     return JobPublic(id=job.id, status=JobStatus(job.status), stage=job.stage,
                      progress=job.progress, cameras=list(job.cameras), attempts=job.attempts,
                      created_at=job.created_at, started_at=job.started_at,
-                     finished_at=job.finished_at, error=job.error, links=links(job.id))
+                     finished_at=job.finished_at, error=job.error,
+                     warnings=list(job.warnings or []), links=links(job.id))
 
 
 def _job(session: SessionDep, owner: str, job_id: str) -> Job:
