@@ -58,6 +58,10 @@ LOSS_SCALE = 0.004
 LENS_PRIOR_SD = 0.3
 #: A fitted lens is kept when it lowers the bundle's cost by this share (a fraction).
 LENS_GAIN = 0.05
+#: A camera whose median reprojection error is this many times the others' is left out.
+STRANGER_FACTOR = 3.0
+#: Least median error (px) of the others that the comparison counts (noise-free data).
+STRANGER_FLOOR_PX = 2.0
 #: Starts adjusted again with free focal lengths (the best by their held-focal cost).
 N_FINALISTS = 3
 #: Most instants put into one bundle adjustment (evenly spread).
@@ -460,6 +464,7 @@ def multiview_start(views: list[NDArray[np.float64]], bases: list[Camera],
         log.info("multi-view start: from fov %.0f deg, focal free -> cost %.3g", fov, cost)
         finals.append((cost, fov, cams, points))
     cost, fov, cams, points = min(finals, key=lambda r: r[0])
+    cams, points, cost = _drop_strangers(cams, points, uv, reasons, cost)
     if not any(b.has_distortion for b in bases):
         with_lens = bundle_adjust(cams, points, uv, free_focal=True, lens=True)
         log.info("multi-view start: with a radial term -> cost %.3g", with_lens[2])
@@ -480,16 +485,39 @@ def reprojection_fit(cams: list[Camera], uv: NDArray[np.float64]) -> float:
     return float(np.median(per)) if per else float("inf")
 
 
+def _drop_strangers(cams: list[Camera | None], points: NDArray[np.float64],
+                    uv: NDArray[np.float64], reasons: dict[str, str], cost: float
+                    ) -> tuple[list[Camera | None], NDArray[np.float64], float]:
+    """Leave out, one at a time, a camera whose joints reproject :data:`STRANGER_FACTOR` times
+    worse than the others' (it saw other people or other instants: a person's shape fits some
+    pose), and adjust the rest again; ``reasons`` gets why. Returns the bundle's cost."""
+    while sum(c is not None for c in cams) > 2:
+        errors = _reprojection(cams, points, uv)
+        worst = max(errors, key=lambda n: errors[n])
+        others = float(np.median([e for n, e in errors.items() if n != worst]))
+        if errors[worst] <= STRANGER_FACTOR * max(others, STRANGER_FLOOR_PX):
+            break
+        reasons[worst] = (f"its joints reproject at {errors[worst]:.1f} px against "
+                          f"{others:.1f} px for the other cameras: it does not see the same "
+                          "people at the same instants")
+        log.warning("multi-view start: %s left out (%s)", worst, reasons[worst])
+        cams = [None if c is not None and c.name == worst else c for c in cams]
+        cams, points, cost = bundle_adjust(cams, points, uv, free_focal=True)
+    return cams, points, cost
+
+
 def _reprojection(cams: list[Camera | None], points: NDArray[np.float64], uv: NDArray[np.float64]
                   ) -> dict[str, float]:
+    """Median reprojection error (px) per placed camera; a point behind a camera counts as
+    infinitely far off."""
     out = {}
     for c, cam in enumerate(cams):
         if cam is None:
             continue
         ok = np.isfinite(points).all(1) & np.isfinite(uv[c]).all(1)
         if ok.any():
-            out[cam.name] = float(np.median(np.linalg.norm(cam.project(points[ok]) - uv[c, ok],
-                                                           axis=1)))
+            err = np.linalg.norm(cam.project(points[ok]) - uv[c, ok], axis=1)
+            out[cam.name] = float(np.median(np.where(np.isfinite(err), err, np.inf)))
     return out
 
 

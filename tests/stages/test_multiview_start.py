@@ -234,3 +234,18 @@ def test_upper_bodies_at_a_desk_give_every_camera_and_say_the_world_has_no_groun
     assert any("no feet" in w for w in res.warnings())
     s = compare_calibrations(res.calibration, scene.truth, ground=False).summary
     assert s.pairwise_rotation_error_deg_median < 5.0
+
+
+@pytest.mark.slow
+def test_a_camera_that_films_other_people_is_left_out_and_the_others_calibrated() -> None:
+    import cascalib
+    from cascalib.simulate import simulate
+
+    scene = simulate("one_spot", seed=0)
+    tracks = list(scene.tracks)
+    tracks[3] = simulate("one_spot", seed=5).tracks[3].with_(camera=tracks[3].camera)
+    res = cascalib.calibrate(tracks, CalibrationConfig(synchronized=True))
+    assert list(res.left_out) == [tracks[3].camera]
+    assert res.calibration.quality["left_out"] == res.left_out
+    s = compare_calibrations(res.calibration, scene.truth, ground=False).summary
+    assert s.n_cameras == 3 and s.pairwise_rotation_error_deg_median < 1.5
