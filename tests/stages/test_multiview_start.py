@@ -10,7 +10,8 @@ import pytest
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera, look_at
 from cascalib.config import CalibrationConfig
-from cascalib.metrics import compare_calibrations
+from cascalib.metrics import ErrorSummary, compare_calibrations
+from cascalib.pipeline import CalibrationResult
 from cascalib.skeletons import CANONICAL_INDEX
 from cascalib.stages.multiview_pairs import match_pair
 from cascalib.stages.multiview_path import known_clocks
@@ -136,23 +137,29 @@ def test_known_clocks_come_from_sync_or_one_files_timestamps() -> None:
                         synchronized=False) is None
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(not DATA.is_dir(), reason=f"real recordings not found at {DATA}")
-def test_pose2sim_multi_person_is_calibrated_where_stage_i_refuses_every_camera() -> None:
+def _pose2sim(which: str) -> tuple[CalibrationResult, ErrorSummary]:
+    """The cascade on one of Pose2Sim's demo recordings, and its errors against Qualisys."""
     import cascalib
     from cascalib.formats import load_calibration
     from cascalib.session import load_session
 
     root = DATA / "pose2sim_demo"
-    tracks = load_session([root / f"multi_person/pose/cam0{i}_json" for i in range(1, 5)],
+    tracks = load_session([root / f"{which}/pose/cam0{i}_json" for i in range(1, 5)],
                           image_size="1088x1920", fps=60)
     res = cascalib.calibrate(tracks, CalibrationConfig(synchronized=True))
+    err = compare_calibrations(res.calibration, load_calibration(root / "Calib.qca.txt"),
+                               ground=False,
+                               mapping={f"cam0{i}": f"cam_0{i}" for i in range(1, 5)})
+    return res, err.summary
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"real recordings not found at {DATA}")
+def test_pose2sim_multi_person_is_calibrated_where_stage_i_refuses_every_camera() -> None:
+    res, s = _pose2sim("multi_person")
     assert len(res.stage_i_advice) == 4 and not res.left_out
-    ref = load_calibration(root / "Calib.qca.txt")
-    err = compare_calibrations(res.calibration, ref, ground=False,
-                               mapping={f"cam0{i}": f"cam_0{i}" for i in range(1, 5)}).summary
-    assert err.focal_error_pct_max < 5.0
-    assert err.pairwise_rotation_error_deg_median < 2.0
+    assert s.focal_error_pct_max < 5.0
+    assert s.pairwise_rotation_error_deg_median < 2.0
     assert res.warnings()
 
 
@@ -194,20 +201,10 @@ def test_stage_i_advice_and_the_multi_view_start_recover_an_unsynchronised_rig()
 @pytest.mark.slow
 @pytest.mark.skipif(not DATA.is_dir(), reason=f"real recordings not found at {DATA}")
 def test_pose2sim_single_person_balancing_on_one_leg_is_calibrated() -> None:
-    import cascalib
-    from cascalib.formats import load_calibration
-    from cascalib.session import load_session
-
-    root = DATA / "pose2sim_demo"
-    tracks = load_session([root / f"single_person/pose/cam0{i}_json" for i in range(1, 5)],
-                          image_size="1088x1920", fps=60)
-    res = cascalib.calibrate(tracks, CalibrationConfig(synchronized=True))
-    ref = load_calibration(root / "Calib.qca.txt")
-    err = compare_calibrations(res.calibration, ref, ground=False,
-                               mapping={f"cam0{i}": f"cam_0{i}" for i in range(1, 5)}).summary
+    res, s = _pose2sim("single_person")
     assert len(res.calibration) == 4
-    assert err.focal_error_pct_median < 5.0
-    assert err.pairwise_rotation_error_deg_median < 2.0
+    assert s.focal_error_pct_median < 5.0
+    assert s.pairwise_rotation_error_deg_median < 2.0
 
 
 @pytest.mark.slow
