@@ -29,6 +29,7 @@ from cascalib.stages.multiview_path import (
     known_clocks,
     multiview_initial,
     refine_or_start,
+    scan_clock,
 )
 from cascalib.stages.multiview_start import focal_range
 from cascalib.stages.refine import RefineResult, refine
@@ -274,16 +275,47 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
             log.warning("stages II-IV: %s; the cameras are placed from the people's joints "
                         "instead", exc)
             return multiview_initial(tracks, cfg, hints, clocks, rng)
-    if clocks is None:
-        without = [n for n in stage_i.failures if n not in stage_i.advice]
-        if without:
-            raise _stage_i_failed({n: stage_i.failures[n] for n in without}, len(tracks),
-                                  "the clocks are unknown (give --synchronized, or timestamps "
-                                  "on one clock, so that the multi-view start can replace it)")
-        rough = _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
-        clocks = [(c.time_offset, c.time_rate) for c in rough.calibration]
-        hints = {c.name: c.focal for c in rough.calibration}
-    return multiview_initial(tracks, cfg, hints, clocks, rng)
+    if clocks is not None:
+        return multiview_initial(tracks, cfg, hints, clocks, rng)
+    found, hints, unclocked = _advised_clocks(tracks, cfg, stage_i, rng, progress)
+    clocked = [t for t in tracks if t.camera in found]
+    if len(clocked) < 2:
+        raise _stage_i_failed(stage_i.failures, len(tracks), "the clocks are unknown (give "
+                              "--synchronized, or timestamps on one clock, so that the "
+                              "multi-view start can replace it)")
+    off0, rate0 = found[clocked[0].camera]
+    start = multiview_initial(clocked, cfg, hints, [
+        ((found[t.camera][0] - off0) / rate0, found[t.camera][1] / rate0) for t in clocked], rng)
+    start.left_out.update(unclocked)
+    return start
+
+
+def _advised_clocks(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
+                    rng: np.random.Generator, progress: Callable[[float], None]
+                    ) -> tuple[dict[str, tuple[float, float]], dict[str, float], dict[str, str]]:
+    """Clocks and focal lengths by camera from stages II-IV run on the cameras stage I
+    estimated, decided or not; a camera it could not estimate at all gets its clock from the
+    people's joints against the first of those, or a reason why not."""
+    with_plane = [t for t in tracks if t.camera not in stage_i.failures
+                  or t.camera in stage_i.advice]
+    if len(with_plane) < 2:
+        return {}, {}, {}
+    rough = _stages_ii_iv(with_plane, cfg, stage_i, rng, progress)
+    found = {c.name: (c.time_offset, c.time_rate) for c in rough.calibration}
+    unclocked = {}
+    for t in tracks:
+        if t.camera in found:
+            continue
+        clock = scan_clock(with_plane[0], (0.0, 1.0), t, rng)
+        if clock is None:
+            unclocked[t.camera] = (f"no clock: {stage_i.failures[t.camera]}; and its people's "
+                                   f"joints fit no two-view geometry with {with_plane[0].camera}"
+                                   " at any time offset")
+        else:
+            found[t.camera] = clock
+            log.info("clock of %s from the people's joints: offset %.1f frames", t.camera,
+                     clock[0])
+    return found, {c.name: c.focal for c in rough.calibration}, unclocked
 
 
 def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,

@@ -13,6 +13,7 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -21,6 +22,7 @@ from cascalib.camera import Camera
 from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, RefinementFailed
 from cascalib.skeletons import CANONICAL_INDEX
+from cascalib.stages.multiview_pairs import RANSAC_THRESHOLD, _candidates, _points
 from cascalib.stages.multiview_start import (
     MultiviewStart,
     WorldFrame,
@@ -33,6 +35,7 @@ from cascalib.stages.quality import CameraQuality
 from cascalib.stages.reconstruct import poses_by_slot, prepare, reconstruct, views_at
 from cascalib.stages.refine import refine
 from cascalib.stages.refine_result import RefineResult
+from cascalib.stages.track_interpolation import frame_links, interpolate_views
 from cascalib.tracks import Tracks
 
 __all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "refine_or_start",
@@ -236,3 +239,68 @@ def refine_or_start(tracks: Sequence[Tracks], initial: MultiviewInitial, cfg: Ca
         return start_result(tracks, initial, cfg, f"stage V explained the matched joints worse "
                             f"({after:.2f} px against {before:.2f} px)")
     return refined
+
+
+#: Reference instants the clock scan compares (evenly spread).
+SCAN_INSTANTS = 240
+#: Coarse step of the clock scan as a fraction of a second (a walker moves 0.2 m in it).
+SCAN_STEP_S = 0.15
+#: Least share of the possible person matches one two-view geometry must explain at the scan's
+#: best offset.
+SCAN_MIN_SUPPORT = 0.5
+#: A person pair is explained when this share of its joints is within the geometry's threshold.
+SCAN_GROUP_SHARE = 0.7
+#: Least share of the reference recording two clocks must overlap by to be scanned.
+SCAN_MIN_OVERLAP = 0.25
+
+
+def _epipolar_support(va: NDArray[np.float64], vb: NDArray[np.float64], diagonal: float,
+                      rng: np.random.Generator) -> tuple[int, int]:
+    """Person matches whose joints one fundamental matrix explains (most joints within its
+    threshold; at most the fewer persons of the two views per instant), and how many were
+    possible: many only where the two clocks agree and overlap."""
+    cand = _candidates(va, vb, rng)
+    if cand is None or cand.t.size < SCAN_INSTANTS * SCAN_MIN_OVERLAP:
+        return 0, 0
+    xa, xb, g = _points(va, vb, cand)
+    F, mask = cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, RANSAC_THRESHOLD * diagonal,
+                                     0.99, 2000)
+    if F is None or mask is None:
+        return 0, 0
+    share = np.bincount(g, mask.ravel().astype(np.float64), cand.t.size) / np.bincount(
+        g, minlength=cand.t.size).clip(1)
+    instants, at = np.unique(cand.t, return_inverse=True)
+    fits = np.bincount(at, share >= SCAN_GROUP_SHARE, instants.size)
+    possible = np.array([min(np.unique(cand.pa[at == k]).size, np.unique(cand.pb[at == k]).size)
+                         for k in range(instants.size)])
+    return int(np.minimum(fits, possible).sum()), int(possible.sum())
+
+
+def scan_clock(reference: Tracks, ref_clock: tuple[float, float], other: Tracks,
+               rng: np.random.Generator) -> tuple[float, float] | None:
+    """Clock (offset, rate) of ``other`` on the clock ``reference`` is read on, from the
+    people's joints alone: the offset at which one two-view geometry explains most of their
+    matches (coarse steps of :data:`SCAN_STEP_S`, then single frames); the rate is the frame
+    rates' ratio. For a camera stage I cannot estimate at all, when the clocks are unknown;
+    None where no offset gets :data:`SCAN_MIN_SUPPORT` of the matches explained."""
+    fps_ref = reference.fps or 1.0 / float(np.nanmedian(np.diff(reference.frame_times())))
+    fps = other.fps or 1.0 / float(np.nanmedian(np.diff(other.frame_times())))
+    rate = fps_ref / fps
+    kr, ko = reference.canonical(), other.canonical()
+    lr, lo = frame_links(kr, reference.track_ids), frame_links(ko, other.track_ids)
+    times = np.linspace(0, kr.shape[0] - 1, SCAN_INSTANTS)
+    va = interpolate_views(kr, lr, (times - ref_clock[0]) / ref_clock[1])
+    diagonal = float(max(np.hypot(*reference.require_image_size()),
+                         np.hypot(*other.require_image_size())))
+    margin = SCAN_MIN_OVERLAP * kr.shape[0]
+
+    def support(offset: float) -> tuple[int, int]:
+        vb = interpolate_views(ko, lo, (times - offset) / rate)
+        return _epipolar_support(va, vb, diagonal, rng)
+
+    step = max(1.0, round(SCAN_STEP_S * fps_ref))
+    coarse = np.arange(-ko.shape[0] * rate + margin, kr.shape[0] - margin, step)
+    best = float(max(coarse, key=lambda o: support(o)[0]))
+    scored = [(support(o), float(o)) for o in np.arange(best - step, best + step + 1.0)]
+    (fits, possible), offset = max(scored, key=lambda r: r[0][0])
+    return (offset, rate) if fits >= SCAN_MIN_SUPPORT * max(1, possible) else None

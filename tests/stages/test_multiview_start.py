@@ -169,18 +169,36 @@ def _refusing(cfg: CalibrationConfig) -> CalibrationConfig:
     return cfg.model_copy(update={"single_view": sv})
 
 
-def test_unknown_clocks_and_no_stage_i_estimate_is_refused_naming_the_camera() -> None:
+def test_unknown_clocks_and_no_camera_stage_i_can_estimate_is_refused_naming_them() -> None:
     import cascalib
     from cascalib.errors import EstimationFailed
     from cascalib.simulate import simulate
 
-    tracks = simulate("terrace", seed=0, duration_s=10.0, **{"people.n_persons": 2}).tracks
-    kp = tracks[1].keypoints.copy()
-    kp[:, :, 5:] = np.nan  # cam1 sees heads only: stage I has nothing to estimate from
-    tracks[1] = tracks[1].with_(keypoints=kp)
+    tracks = simulate("terrace", seed=0, duration_s=10.0, **{"people.n_persons": 2}).tracks[:2]
+    for k in range(2):  # heads only: stage I has nothing to estimate from
+        kp = tracks[k].keypoints.copy()
+        kp[:, :, 5:] = np.nan
+        tracks[k] = tracks[k].with_(keypoints=kp)
     with pytest.raises(EstimationFailed, match="clocks are unknown") as err:
-        cascalib.calibrate(tracks, _refusing(CalibrationConfig()))
-    assert "cam1" in str(err.value)
+        cascalib.calibrate(tracks)
+    assert "cam0" in str(err.value) and "cam1" in str(err.value)
+
+
+@pytest.mark.slow
+def test_a_camera_stage_i_cannot_estimate_gets_its_clock_from_the_joints() -> None:
+    import cascalib
+    from cascalib.simulate import simulate
+
+    scene = simulate("terrace", seed=3, duration_s=40.0, **{"people.n_persons": 4})
+    tracks = list(scene.tracks)
+    kp = tracks[2].keypoints.copy()
+    kp[:, :, [15, 16]] = np.nan  # no ankles (COCO-17): stage I finds nobody upright
+    tracks[2] = tracks[2].with_(keypoints=kp)
+    res = cascalib.calibrate(tracks, CalibrationConfig(seed=1))
+    assert list(res.stage_i_advice) == ["cam2"] and not res.left_out
+    s = compare_calibrations(res.calibration, scene.truth).summary
+    assert s.time_offset_error_frames_max < 0.2
+    assert s.rotation_error_deg_max < 1.0
 
 
 @pytest.mark.slow
