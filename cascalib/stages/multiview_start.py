@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from cascalib.camera import Camera
 from cascalib.geometry import rodrigues_to_matrix
+from cascalib.nanstats import nanmean
 from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_pair
 from cascalib.stages.triangulation import triangulate
 
@@ -601,13 +602,19 @@ def _trunk_up(points: NDArray[np.float64], joints: NDArray[np.int64]
     raise ValueError("no trunk or head seen by two cameras: the up direction is unknown")
 
 
+def _finite_median(x: NDArray[np.float64]) -> float:
+    """Median of the finite values of ``x`` (NaN when there are none)."""
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if x.size else float("nan")
+
+
 def _stance(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArray[np.float64]
             ) -> NDArray[np.float64]:
     """Per group, the foot it stands on along ``up``: the lower ankle, or both ankles' middle
     when they are at one height (within a tenth of the leg)."""
     la, ra = _joint(points, joints, "left_ankle"), _joint(points, joints, "right_ankle")
     zl, zr = la @ up, ra @ up
-    leg = np.nanmedian(np.linalg.norm(_joint(points, joints, "left_hip") - la, axis=1))
+    leg = _finite_median(np.linalg.norm(_joint(points, joints, "left_hip") - la, axis=1))
     lower = np.where((zl <= zr) | ~np.isfinite(zr), 0, 1)[:, None]
     one = np.where(lower == 0, la, ra)
     both = np.isfinite(zl) & np.isfinite(zr) & (np.abs(zl - zr) < 0.1 * leg)
@@ -620,7 +627,7 @@ def _balance_up(points: NDArray[np.float64], joints: NDArray[np.int64],
     body = np.isin(joints, BODY_CENTRE_JOINTS)
     u = start
     for _ in range(BALANCE_ITERATIONS):
-        centre = np.nanmean(points[:, body], axis=1)
+        centre = nanmean(points[:, body], axis=1)
         d = centre - _stance(points, joints, u)
         d = d[np.isfinite(d).all(1)]
         if len(d) < MIN_UP_GROUPS:
@@ -635,10 +642,10 @@ def _standing(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArra
     """Whether the people stand on their legs along ``up``: the hips above the stance foot by
     most of the leg's length (seated, the legs lie nearly level)."""
     hip = _joint(points, joints, "mid_hip")
-    leg = np.nanmedian(np.linalg.norm(_joint(points, joints, "left_hip")
-                                      - _joint(points, joints, "left_knee"), axis=1)
-                       + np.linalg.norm(_joint(points, joints, "left_knee")
-                                        - _joint(points, joints, "left_ankle"), axis=1))
+    leg = _finite_median(np.linalg.norm(_joint(points, joints, "left_hip")
+                                        - _joint(points, joints, "left_knee"), axis=1)
+                         + np.linalg.norm(_joint(points, joints, "left_knee")
+                                          - _joint(points, joints, "left_ankle"), axis=1))
     rise = (hip - _stance(points, joints, up)) @ up
     rise = rise[np.isfinite(rise)]
     return bool(rise.size >= MIN_UP_GROUPS and np.median(rise) > STANDING_LEG_FRACTION * leg)
