@@ -28,6 +28,7 @@ from cascalib.stages.multiview_path import (
     MultiviewInitial,
     known_clocks,
     multiview_initial,
+    rebase_clocks,
     refine_or_start,
     scan_clock,
 )
@@ -283,9 +284,8 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
         raise _stage_i_failed(stage_i.failures, len(tracks), "the clocks are unknown (give "
                               "--synchronized, or timestamps on one clock, so that the "
                               "multi-view start can replace it)")
-    off0, rate0 = found[clocked[0].camera]
-    start = multiview_initial(clocked, cfg, hints, [
-        ((found[t.camera][0] - off0) / rate0, found[t.camera][1] / rate0) for t in clocked], rng)
+    start = multiview_initial(clocked, cfg, hints,
+                              rebase_clocks([found[t.camera] for t in clocked]), rng)
     start.left_out.update(unclocked)
     return start
 

@@ -38,8 +38,8 @@ from cascalib.stages.refine_result import RefineResult
 from cascalib.stages.track_interpolation import frame_links, interpolate_views
 from cascalib.tracks import Tracks
 
-__all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "refine_or_start",
-           "start_result", "WORLD_NOTE"]
+__all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "rebase_clocks",
+           "refine_or_start", "start_result", "WORLD_NOTE"]
 
 log = logging.getLogger(__name__)
 
@@ -111,9 +111,14 @@ def _bases(tracks: Sequence[Tracks], cfg: CalibrationConfig,
 
 def _rebase_clocks(cams: list[Camera]) -> list[Camera]:
     """Clocks on the first camera's (when the first input camera was left out)."""
-    off0, rate0 = cams[0].time_offset, cams[0].time_rate
-    return [c.with_(time_offset=(c.time_offset - off0) / rate0, time_rate=c.time_rate / rate0)
-            for c in cams]
+    clocks = rebase_clocks([(c.time_offset, c.time_rate) for c in cams])
+    return [c.with_(time_offset=o, time_rate=r) for c, (o, r) in zip(cams, clocks, strict=True)]
+
+
+def rebase_clocks(clocks: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Clocks (time offset, rate) read on the first one's: that one becomes (0, 1)."""
+    off0, rate0 = clocks[0]
+    return [((off - off0) / rate0, rate / rate0) for off, rate in clocks]
 
 
 def multiview_initial(tracks: Sequence[Tracks], cfg: CalibrationConfig,
