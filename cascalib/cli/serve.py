@@ -1,46 +1,47 @@
 """``cascalib serve``: run the REST calibration service (needs the ``service`` extra).
 
-Configured by CASCALIB_* environment variables (see ``service/core/config.py``):
-CASCALIB_DATA_DIR, CASCALIB_DATABASE_URL, CASCALIB_API_TOKENS, CASCALIB_BROKER_URL, ...
+The service is a layer above the library, so this command imports nothing of it: it hands its
+arguments to the ``serve`` entry point of the ``cascalib.commands`` group (``service.cli:main``,
+also installed as ``cascalib-serve``), which owns the flags (``cascalib serve --help``).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import Any
+
+#: Where the command lives when the installed metadata predates the entry point (an old
+#: editable install): the module the entry point names.
+_FALLBACK = "service.cli"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("serve", help="run the REST calibration service",
-                       description="Run the REST calibration service (API + embedded worker "
-                       "pool, or the API alone when CASCALIB_BROKER_URL selects Celery workers).")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface to listen on (default: %(default)s)")
-    p.add_argument("--port", type=int, default=8000, help="TCP port (default: %(default)s)")
-    p.add_argument("--insecure-no-auth", action="store_true",
-                   help="accept requests without a token (only for a trusted network)")
+    # Every argument goes to the service's own parser; "+" as the only option prefix keeps
+    # argparse from reading "--port" here, and "--help" reaches the service's help.
+    p = sub.add_parser("serve", help="run the REST calibration service", add_help=False,
+                       prefix_chars="+")
+    p.add_argument("service_args", nargs=argparse.REMAINDER)
     p.set_defaults(run=run)
 
 
+def _service_main() -> Callable[..., Any] | None:
+    found = entry_points(group="cascalib.commands", name="serve")
+    if found:
+        return next(iter(found)).load()  # type: ignore[no-any-return]
+    try:
+        return importlib.import_module(_FALLBACK).main  # type: ignore[no-any-return]
+    except ImportError:
+        return None
+
+
 def run(args: argparse.Namespace) -> int:
-    try:
-        import uvicorn
-
-        from service.core.config import ConfigurationError, Settings
-        from service.main import create_app, prepare_store
-    except ImportError as exc:
-        print(f"cascalib serve: the service extra is not installed ({exc}); "
-              "pip install 'cascalib[service]'", file=sys.stderr)
+    main = _service_main()
+    if main is None:
+        print("cascalib serve: the service is not installed; pip install 'cascalib[service]'",
+              file=sys.stderr)
         return 2
-    from pydantic import ValidationError
-
-    try:
-        settings = Settings(insecure_no_auth=True) if args.insecure_no_auth else Settings()
-        prepare_store(settings).dispose()  # migrate and check before binding the port
-    except (ConfigurationError, ValidationError) as exc:
-        print(f"cascalib serve: error: {exc}", file=sys.stderr)
-        return 2
-    level = "info" if args.verbose else "warning"
-    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=level,
-                timeout_graceful_shutdown=10)
-    return 0
+    return int(main(args.service_args, prog="cascalib serve", verbose=args.verbose))

@@ -20,6 +20,17 @@ def test_serve_refuses_to_start_without_tokens(tmp_path: Path) -> None:
     assert "Traceback" not in r.stderr
 
 
+def test_serve_help_is_the_services_own() -> None:
+    """``cascalib serve`` hands its arguments to the service's command (an entry point)."""
+    for cmd in (["-m", "cascalib.cli", "serve", "--help"], ["-m", "service", "--help"]):
+        r = subprocess.run([sys.executable, *cmd], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert "--insecure-no-auth" in r.stdout and "--port" in r.stdout
+    assert "usage: cascalib serve" in subprocess.run(
+        [sys.executable, "-m", "cascalib.cli", "serve", "-h"], capture_output=True, text=True,
+        timeout=120).stdout
+
+
 def test_serve_insecure_no_auth_opens_the_api(tmp_path: Path) -> None:
     env = make_env(tmp_path / "data")
     del env["CASCALIB_API_TOKENS"]
