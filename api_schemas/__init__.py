@@ -1,4 +1,5 @@
-"""Public request/response models of the cascalib calibration service (pydantic only)."""
+"""Public request/response models of the cascalib calibration service (pydantic, and the
+library's format registry :mod:`cascalib.calibration_formats`)."""
 
 from api_schemas.health import Health, Readiness
 from api_schemas.jobs import (
@@ -9,6 +10,7 @@ from api_schemas.jobs import (
     JobPublic,
     JobsPublic,
     JobStatus,
+    ResultFormat,
 )
 from api_schemas.problems import PROBLEM_MEDIA_TYPE, InvalidParam, Problem
 
@@ -25,4 +27,5 @@ __all__ = [
     "Problem",
     "RESULT_FORMATS",
     "Readiness",
+    "ResultFormat",
 ]

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import enum
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from cascalib.calibration_formats import WRITABLE
 
 __all__ = [
     "JobCreated",
@@ -22,10 +24,18 @@ __all__ = [
     "JobStatus",
     "JobsPublic",
     "RESULT_FORMATS",
+    "ResultFormat",
 ]
 
-#: Calibration file formats ``GET /v1/jobs/{id}/result?format=`` can return.
-RESULT_FORMATS: tuple[str, ...] = ("json", "toml", "opencv", "colmap", "easymocap")
+#: Calibration file formats ``GET /v1/jobs/{id}/result?format=`` can return: every format the
+#: library writes (its registry, :mod:`cascalib.calibration_formats`).
+RESULT_FORMATS: tuple[str, ...] = WRITABLE
+
+if TYPE_CHECKING:
+    ResultFormat = str
+else:
+    #: The ``?format=`` values, as a type (an enum in the OpenAPI schema).
+    ResultFormat = Literal[RESULT_FORMATS]
 
 _SIZE_PATTERN = r"^\s*[0-9]{1,6}\s*[xX]\s*[0-9]{1,6}\s*$"
 _CAMERA_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"

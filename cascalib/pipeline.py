@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from cascalib import calibration_formats
 from cascalib.calibration import Calibration
 from cascalib.camera import Camera
 from cascalib.config import CalibrationConfig
@@ -159,10 +160,10 @@ class CalibrationResult:
 
 
 def _calibration_path(outdir: Path, fmt: str) -> Path:
-    return {"json": outdir / "calibration.json", "toml": outdir / "calibration.toml",
-            "opencv": outdir / "calibration_opencv.yml", "colmap": outdir / "colmap",
-            "easymocap": outdir / "easymocap", "caliscope": outdir / "camera_array.toml",
-            }.get(fmt, outdir / f"calibration.{fmt}")
+    known = calibration_formats.FORMATS.get(fmt)
+    if known is None or not known.writable:
+        return outdir / f"calibration.{fmt}"  # save_calibration names the problem
+    return outdir / known.output_name
 
 
 def _check_inputs(tracks: Sequence[Tracks], cfg: CalibrationConfig) -> None:

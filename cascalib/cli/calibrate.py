@@ -7,10 +7,12 @@ import json
 import sys
 from pathlib import Path
 
+from cascalib.calibration_formats import WRITABLE
 from cascalib.cli.progress import StageProgress
 
 EXIT_REJECTED = 1
-FORMATS = ("json", "toml", "caliscope", "opencv", "colmap", "easymocap")
+#: The formats ``--formats`` takes (the registry's writable ones).
+FORMATS = WRITABLE
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -5,15 +5,17 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from cascalib.calibration_formats import FORMATS, WRITABLE
 from cascalib.errors import CalibrationFileError
 
 _BY_SUFFIX = {".json": "json", ".toml": "toml", ".yml": "opencv", ".yaml": "opencv",
               ".xml": "opencv"}
 
+#: Output names that say their format (``camera_array.toml``, ``calibration_opencv.yml``, ...).
+_BY_NAME = {f.output_name: f.name for f in FORMATS.values() if f.writable and not f.is_folder}
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    from cascalib.formats.calibration import FORMATS
-
     names = ", ".join(FORMATS)
     p = sub.add_parser(
         "convert", help="convert a calibration between file formats",
@@ -34,13 +36,10 @@ def output_format(path: Path, given: str | None) -> str:
         return given
     if path.name in ("intri.yml", "extri.yml"):
         return "easymocap"
-    if path.name == "camera_array.toml":
-        return "caliscope"
-    fmt = _BY_SUFFIX.get(path.suffix.lower())
+    fmt = _BY_NAME.get(path.name) or _BY_SUFFIX.get(path.suffix.lower())
     if fmt is None:
         raise CalibrationFileError("cannot tell the output format from the name; pass --to "
-                                   "(json, toml, caliscope, opencv, colmap, easymocap)",
-                                   file=str(path), field="--to")
+                                   f"({', '.join(WRITABLE)})", file=str(path), field="--to")
     return fmt
 
 

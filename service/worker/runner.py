@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from api_schemas import RESULT_FORMATS, JobOptions
+from cascalib import calibration_formats
 from cascalib.errors import CascalibError
 from service import store as st
 from service.inputs import (
@@ -75,9 +76,6 @@ def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
     return tracks
 
 
-#: Where each extra calibration format goes (the names ``CalibrationResult.save`` uses).
-_EXPORT_PATHS = {"toml": "calibration.toml", "opencv": "calibration_opencv.yml",
-                 "colmap": "colmap", "easymocap": "easymocap"}
 EXPORT_ERRORS = "export_errors.json"
 
 
@@ -92,7 +90,8 @@ def _export(result: Any, tmp: Path) -> dict[str, Path]:
         if fmt == "json":
             continue
         try:
-            paths = save_calibration(result.calibration, tmp / _EXPORT_PATHS[fmt], fmt)
+            out = tmp / calibration_formats.get_format(fmt).output_name
+            paths = save_calibration(result.calibration, out, fmt)
             saved[f"calibration:{fmt}"] = Path(paths[0])
         except CascalibError as exc:
             log.warning("export to %s failed: %s", fmt, exc)

@@ -13,6 +13,9 @@ format          files                                        read    write   kee
 ``qualisys``    Qualisys ``.qca.txt`` (XML)                  yes     no      no
 ==============  ===========================================  ======  ======  ==================
 
+The names, output file names and modules come from the one registry,
+:mod:`cascalib.calibration_formats`.
+
 Each format module has ``to_dict``/``from_dict`` (a plain-dict round trip, as aniposelib's
 ``get_dict``/``from_dict``) and ``read``/``write``. Every reader validates through one helper and
 raises :class:`~cascalib.errors.CalibrationFileError` naming the file, camera and field.
@@ -24,31 +27,17 @@ from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
+from cascalib import calibration_formats
 from cascalib.calibration import Calibration
 from cascalib.errors import CalibrationFileError
-from cascalib.formats.calibration import (
-    anipose_toml,
-    caliscope_toml,
-    colmap_text,
-    easymocap_yaml,
-    native_json,
-    opencv_yaml,
-    qualisys_qca,
-)
+from cascalib.formats.calibration import anipose_toml, caliscope_toml, easymocap_yaml
 from cascalib.formats.calibration._time_sidecar import TIME_SIDECAR
 
 __all__ = ["FORMATS", "TIME_SIDECAR", "detect_format", "load_calibration", "save_calibration"]
 
-#: Format name -> module with ``read`` (and ``write`` unless read-only).
-FORMATS: dict[str, ModuleType] = {
-    "json": native_json,
-    "toml": anipose_toml,
-    "caliscope": caliscope_toml,
-    "opencv": opencv_yaml,
-    "colmap": colmap_text,
-    "easymocap": easymocap_yaml,
-    "qualisys": qualisys_qca,
-}
+#: Format name -> module with ``read`` (and ``write`` unless read-only), from the registry.
+FORMATS: dict[str, ModuleType] = {name: f.load()
+                                  for name, f in calibration_formats.FORMATS.items()}
 _ALIASES = {"native": "json", "aniposelib": "toml", "anipose": "toml", "pose2sim": "toml",
             "yaml": "opencv", "yml": "opencv", "xml": "opencv", "qca": "qualisys"}
 

@@ -19,7 +19,9 @@ from api_schemas import (
     JobsPublic,
     JobStatus,
     Problem,
+    ResultFormat,
 )
+from cascalib.calibration_formats import get_format
 from service import store as st
 from service.api.deps import SessionDep, StateDep, TokenDep
 from service.core.problems import ProblemError
@@ -157,9 +159,10 @@ def _serve(state: StateDep, job: Job, roles: tuple[str, ...], media_type: str,
                         headers={"ETag": f'"{found.sha256}"'})
 
 
-FOLDER_FORMATS = ("colmap", "easymocap")
-_MEDIA = {"json": "application/json", "toml": "application/toml", "opencv": "application/yaml",
-          "colmap": "application/zip", "easymocap": "application/zip"}
+#: Output folders of the formats written as several files (served as a zip).
+FOLDER_FORMATS = tuple(get_format(f).output_name for f in RESULT_FORMATS
+                       if get_format(f).is_folder)
+_MEDIA = {f: get_format(f).served_media_type for f in RESULT_FORMATS}
 _POSES_MEDIA = {"json": "application/json", "npz": "application/octet-stream"}
 _BINARY = {"type": "string", "format": "binary"}
 
@@ -176,21 +179,23 @@ def _downloads(media: dict[str, dict[str, Any]], what: str) -> dict[int | str, d
 
 
 _RESULT_DOC = _downloads({
-    "application/json": {"schema": {"type": "object"}},
-    "application/toml": {"schema": {"type": "string"}},
-    "application/yaml": {"schema": {"type": "string"}},
-    "application/zip": {"schema": _BINARY}}, "The calibration in the format asked for")
+    media: {"schema": {"type": "object"} if media == "application/json" else
+            _BINARY if media == "application/zip" else {"type": "string"}}
+    for media in dict.fromkeys(_MEDIA.values())}, "The calibration in the format asked for")
 _REPORT_DOC = _downloads({"text/html": {"schema": {"type": "string"}}}, "The HTML report")
 _POSES_DOC = _downloads({"application/json": {"schema": {"type": "object"}},
                          "application/octet-stream": {"schema": _BINARY}},
                         "3D poses: JSON, or NumPy .npz arrays")
 
 
+_FORMAT_DOC = "Calibration file format ({}); {} come as a zip of their folder.".format(
+    ", ".join(f"{f}: {get_format(f).description}" for f in RESULT_FORMATS),
+    " and ".join(f for f in RESULT_FORMATS if get_format(f).is_folder))
+
+
 @router.get("/{job_id}/result", response_class=Response, responses=_RESULT_DOC)
 def read_result(job_id: JobId, session: SessionDep, owner: TokenDep, state: StateDep,
-                format: Annotated[Literal["json", "toml", "opencv", "colmap", "easymocap"],
-                                  Query(description="Calibration file format (colmap and "
-                                        "easymocap come as a zip of their folder).")] = "json",
+                format: Annotated[ResultFormat, Query(description=_FORMAT_DOC)] = "json",
                 ) -> Response:
     """The calibration: native JSON, or another supported format."""
     assert format in RESULT_FORMATS
