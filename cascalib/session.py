@@ -141,17 +141,22 @@ def read_manifest(path: Path) -> dict[str, Any]:
 
 
 def is_manifest(path: Path) -> bool:
-    """True for a TOML file, or a JSON object with a ``cameras`` table and no keypoints."""
+    """True for a TOML file, or a JSON object with a ``cameras`` table and no keypoints.
+
+    A keypoint file (megabytes) is only parsed here when its bytes could name a ``cameras`` key:
+    literally, or through a backslash escape; otherwise its reader parses it once.
+    """
     if path.is_dir() or path.suffix.lower() not in (".toml", ".json"):
         return False
     if path.suffix.lower() == ".toml":
         return True
     try:
-        with path.open("rb") as fh:
-            head = fh.read(4096).lstrip()
-        if not head.startswith(b"{"):
+        raw = path.read_bytes()
+        if not raw[:4096].lstrip().startswith(b"{"):
             return False
-        data = json.loads(path.read_text())
+        if b'"cameras"' not in raw and b"\\" not in raw:
+            return False
+        data = json.loads(raw)
     except (OSError, ValueError):
         return False
     return isinstance(data, dict) and isinstance(data.get("cameras"), dict) and "schema" not in data

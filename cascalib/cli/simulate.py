@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 
 from cascalib.errors import InputError
-from cascalib.simulate.output import TRACK_SUFFIX
+from cascalib.formats.keypoints import FORMATS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="JSON file with a full SceneConfig (instead of --preset)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--output", type=Path, help="output folder")
-    p.add_argument("--format", default="native-json", choices=sorted(TRACK_SUFFIX),
+    p.add_argument("--format", default="native-json", choices=sorted(FORMATS),
                    help="keypoint file format (default native-json)")
     p.add_argument("--persons", type=int, default=None, help="override the number of persons")
     p.add_argument("--cameras", type=int, default=None, help="override the number of cameras")

@@ -139,12 +139,16 @@ def read_tracks_many(path: str | Path, *, camera: Any = None,
     list of Tracks
         One per camera, in the file's order.
     """
-    path = Path(path)
+    with c.gc_paused():  # the parsed JSON is freed by reference counting once read
+        return _read_tracks_many(Path(path), camera, format, skeleton=skeleton,
+                                 image_size=image_size, fps=fps)
+
+
+def _read_tracks_many(path: Path, camera: Any, format: str | None, **kw: Any) -> list[Tracks]:
     sniffed, obj = _sniff(path, camera) if format is None else (None, None)
     fmt = _format_name(format) if format is not None else sniffed
     if fmt == "native":
         fmt = "native-npz" if (sniffed or _sniff(path)[0]) == "native-npz" else "native-json"
-    kw: dict[str, Any] = {"skeleton": skeleton, "image_size": image_size, "fps": fps}
     if fmt == "mediapipe-csv":
         return mediapipe_csv.read_mediapipe_csv(path, camera=camera, **kw)
     if camera is not None and not isinstance(camera, str):
