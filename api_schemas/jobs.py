@@ -77,12 +77,15 @@ class JobOptions(BaseModel):
     image_size: str | dict[str, str] | None = Field(
         default=None,
         description="Image size WIDTHxHEIGHT of every camera, or an object camera -> size. "
-        "Needed when the keypoint files do not carry it.",
+        "Needed when the keypoint files do not carry it; a size other than the one a file "
+        "records is refused.",
         examples=["1920x1080"],
     )
     fps: float | dict[str, float] | None = Field(
         default=None,
-        description="Nominal frame rate of every camera, or an object camera -> rate.",
+        description="Nominal frame rate of every camera, or an object camera -> rate. As on "
+        "the command line, a rate given for a camera beats the one its file records, a rate "
+        "for every camera does not; a disagreement is listed in the job's warnings.",
         examples=[30, {"cam0": 30, "cam2": 25}],
     )
     skeleton: str | None = Field(
@@ -166,8 +169,9 @@ class JobPublic(BaseModel):
     finished_at: datetime | None = None
     error: str | None = Field(default=None, description="Why the job failed.")
     warnings: list[str] = Field(
-        default_factory=list, description="What a succeeded job could not determine: cameras "
-        "left out (with the reason), stage I replaced by the multi-view start, no ground seen.")
+        default_factory=list, description="What a succeeded job could not determine or "
+        "decided against the client: a given frame rate its file contradicts, cameras left out "
+        "(with the reason), stage I replaced by the multi-view start, no ground seen.")
     links: JobLinks
 
 

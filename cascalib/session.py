@@ -3,22 +3,30 @@
 Users give cameras as files or folders (one camera each; the camera name is the file or folder
 name), or as one session manifest (TOML or JSON) listing them. Image size and frame rate are not
 stored by most detector formats, so they can be given for every camera at once (``"1920x1080"``,
-``30``) or per camera (``{"cam2": "1280x720"}``). A value found in the file always wins over none;
-an explicit per-camera value wins over the file.
+``30``) or per camera (``{"cam2": "1280x720"}``). :class:`GivenValues` holds the one rule the
+command line, the Python API and the REST service share: a value found in the file wins over
+none; a frame rate given for this camera beats the file's, one given for every camera loses to
+it, and either disagreement becomes a warning; a given image size that differs from the file's
+is refused (docs/decisions/image-size-precedence.md).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import tomllib
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cascalib.errors import InputError
 from cascalib.tracks import Tracks, parse_image_size
 
-__all__ = ["load_session", "parse_camera_values", "apply_overrides", "read_manifest"]
+__all__ = ["GivenValues", "load_session", "resolve_session", "parse_camera_values",
+           "apply_overrides", "resolve_camera_values", "read_manifest"]
+
+log = logging.getLogger(__name__)
 
 PerCamera = str | float | Mapping[str, Any] | Sequence[str] | None
 
@@ -77,13 +85,71 @@ def _parse_fps(v: Any) -> float:
     return fps
 
 
-def apply_overrides(tracks: list[Tracks], *, image_size: PerCamera = None, fps: PerCamera = None
-                    ) -> list[Tracks]:
-    """Fill in image sizes and frame rates.
+@dataclass(frozen=True)
+class GivenValues:
+    """Image sizes and frame rates a caller gives, for every camera and per camera."""
 
-    Frame rates: per-camera value > value in the file > global value. Image sizes: the file's,
-    else the given one; a given size that differs from the file's is refused (the rule of
-    :func:`~cascalib.formats.keypoints._common.resolve_image_size`, the REST service's too).
+    size_all: tuple[int, int] | None = None
+    size_per: dict[str, tuple[int, int]] = field(default_factory=dict)
+    fps_all: float | None = None
+    fps_per: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def parse(cls, image_size: PerCamera = None, fps: PerCamera = None) -> GivenValues:
+        """From command-line style values (see :func:`parse_camera_values`)."""
+        size_all, size_per = parse_camera_values(image_size, parse_image_size, field="image_size")
+        fps_all, fps_per = parse_camera_values(fps, _parse_fps, field="fps")
+        return cls(size_all, size_per, fps_all, fps_per)
+
+    def check_cameras(self, names: Sequence[str]) -> None:
+        """Refuse a per-camera value for a camera that is not in the session."""
+        for cam in list(self.size_per) + list(self.fps_per):
+            if cam not in names:
+                raise InputError(f"no camera named {cam!r} in this session (cameras: "
+                                 f"{', '.join(names)})", camera=cam,
+                                 field="image_size" if cam in self.size_per else "fps")
+
+    def apply(self, t: Tracks) -> tuple[Tracks, list[str]]:
+        """One camera's tracks with the given values filled in, and the warnings.
+
+        Frame rate: this camera's given value > the file's > the value for every camera; a
+        given value the file contradicts is a warning (whichever wins). Image size: the file's,
+        else the given one; a given size that differs from the file's is refused.
+
+        Raises
+        ------
+        InputError
+            A given image size other than the one the file records (``field="image_size"``).
+        """
+        from cascalib.formats.keypoints._common import resolve_image_size
+
+        given = self.size_per.get(t.camera, self.size_all)
+        size = resolve_image_size(t.image_size, given, camera=t.camera, file=t.source)
+        rate, notes = t.fps, []
+        if t.camera in self.fps_per:
+            rate = self.fps_per[t.camera]
+            if t.fps is not None and t.fps != rate:
+                notes.append(f"camera {t.camera}: the given {rate:g} fps replaces the "
+                             f"{t.fps:g} fps its file records")
+        elif t.fps is None:
+            rate = self.fps_all
+        elif self.fps_all is not None and self.fps_all != t.fps:
+            notes.append(f"camera {t.camera}: its file records {t.fps:g} fps; the "
+                         f"{self.fps_all:g} fps given for every camera is not used for it")
+        if (size, rate) == (t.image_size, t.fps):
+            return t, notes
+        return t.with_(image_size=size, fps=rate), notes
+
+
+def resolve_camera_values(tracks: Sequence[Tracks], *, image_size: PerCamera = None,
+                          fps: PerCamera = None) -> tuple[list[Tracks], list[str]]:
+    """Fill in image sizes and frame rates by the rule of :meth:`GivenValues.apply`.
+
+    Returns
+    -------
+    tracks : list of Tracks
+    warnings : list of str
+        Each given frame rate a file contradicts, naming the camera and both rates.
 
     Raises
     ------
@@ -91,23 +157,22 @@ def apply_overrides(tracks: list[Tracks], *, image_size: PerCamera = None, fps: 
         If a per-camera value names a camera that is not in the session, or a given image
         size differs from the one a file records.
     """
-    from cascalib.formats.keypoints._common import resolve_image_size
-
-    size_all, size_per = parse_camera_values(image_size, parse_image_size, field="image_size")
-    fps_all, fps_per = parse_camera_values(fps, _parse_fps, field="fps")
-    names = [t.camera for t in tracks]
-    for cam in list(size_per) + list(fps_per):
-        if cam not in names:
-            raise InputError(f"no camera named {cam!r} in this session (cameras: "
-                             f"{', '.join(names)})", camera=cam,
-                             field="image_size" if cam in size_per else "fps")
-    out = []
+    given = GivenValues.parse(image_size, fps)
+    given.check_cameras([t.camera for t in tracks])
+    out, notes = [], []
     for t in tracks:
-        given = size_per.get(t.camera, size_all)
-        size = resolve_image_size(t.image_size, given, camera=t.camera, file=t.source)
-        rate = fps_per.get(t.camera, t.fps if t.fps is not None else fps_all)
-        out.append(t.with_(image_size=size, fps=rate) if (size, rate) != (t.image_size, t.fps)
-                   else t)
+        resolved, why = given.apply(t)
+        out.append(resolved)
+        notes += why
+    return out, notes
+
+
+def apply_overrides(tracks: list[Tracks], *, image_size: PerCamera = None, fps: PerCamera = None
+                    ) -> list[Tracks]:
+    """:func:`resolve_camera_values`, its warnings logged."""
+    out, notes = resolve_camera_values(tracks, image_size=image_size, fps=fps)
+    for note in notes:
+        log.warning("%s", note)
     return out
 
 
@@ -164,7 +229,18 @@ def is_manifest(path: Path) -> bool:
 
 def load_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
                  fps: PerCamera = None, skeleton: str | None = None) -> list[Tracks]:
-    """Read the keypoint tracks of every camera of a session.
+    """:func:`resolve_session`'s tracks, its warnings logged."""
+    tracks, notes = resolve_session(paths, image_size=image_size, fps=fps, skeleton=skeleton)
+    for note in notes:
+        log.warning("%s", note)
+    return tracks
+
+
+def resolve_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
+                    fps: PerCamera = None, skeleton: str | None = None
+                    ) -> tuple[list[Tracks], list[str]]:
+    """Read the keypoint tracks of every camera of a session, with the warnings of
+    :func:`resolve_camera_values`.
 
     Parameters
     ----------
@@ -178,8 +254,10 @@ def load_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
 
     Returns
     -------
-    list of Tracks
+    tracks : list of Tracks
         In the order given.
+    warnings : list of str
+        Given frame rates the files contradict.
 
     Raises
     ------
@@ -214,7 +292,9 @@ def load_session(paths: Sequence[str | Path], *, image_size: PerCamera = None,
                 if key in spec or key in data:
                     store[name] = spec.get(key, data.get(key))
     tracks = read_session(files, cameras=names, skeleton=skeleton)  # type: ignore[arg-type]
+    notes: list[str] = []
     if manifest_sizes or manifest_fps:
-        tracks = apply_overrides(tracks, image_size=manifest_sizes or None,
-                                 fps=manifest_fps or None)
-    return apply_overrides(tracks, image_size=image_size, fps=fps)
+        tracks, notes = resolve_camera_values(tracks, image_size=manifest_sizes or None,
+                                              fps=manifest_fps or None)
+    tracks, more = resolve_camera_values(tracks, image_size=image_size, fps=fps)
+    return tracks, notes + more

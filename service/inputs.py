@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 from api_schemas import JobOptions
 
-__all__ = ["ZipLimits", "is_zip", "safe_extract", "read_camera", "per_camera", "build_config",
+__all__ = ["ZipLimits", "is_zip", "safe_extract", "read_camera", "build_config",
            "check_session", "zip_limits"]
 
 #: Names allowed for a member of an uploaded zip (after dropping its folders).
@@ -157,16 +157,17 @@ def safe_extract(archive: Path, dest: Path, limits: ZipLimits, *, file: str) -> 
     return dest
 
 
-def per_camera(value: Any, camera: str) -> Any:
-    """The value of a per-camera option for one camera (a plain value applies to all)."""
-    if isinstance(value, dict):
-        return value.get(camera)
-    return value
-
-
 def read_camera(path: Path, camera: str, options: JobOptions,
-                limits: ZipLimits | None = None) -> Tracks:
-    """Parse one camera's keypoints (any supported format) with the job's options.
+                limits: ZipLimits | None = None) -> tuple[Tracks, list[str]]:
+    """Parse one camera's keypoints (any supported format) and fill in the job's image size
+    and frame rate by the command line's rule (:class:`cascalib.session.GivenValues`).
+
+    Returns
+    -------
+    tracks : Tracks
+    warnings : list of str
+        A given frame rate the file contradicts (this camera's beats the file's, one for every
+        camera loses to it): the job reports it with its result.
 
     Raises
     ------
@@ -178,23 +179,22 @@ def read_camera(path: Path, camera: str, options: JobOptions,
     """
     from cascalib.formats import read_tracks
     from cascalib.formats.keypoints import ReadLimits, read_limits
+    from cascalib.session import GivenValues
 
-    size = per_camera(options.image_size, camera)
-    fps = per_camera(options.fps, camera)
     bounds = ReadLimits() if limits is None else ReadLimits(
         limits.max_frames, limits.max_persons, limits.max_keypoint_bytes)
+    with read_limits(bounds):
+        raw = read_tracks(path, camera=camera, skeleton=options.skeleton)
     try:
-        with read_limits(bounds):
-            tracks = read_tracks(path, camera=camera, skeleton=options.skeleton,
-                                 image_size=size, fps=None if fps is None else float(fps))
+        tracks, notes = GivenValues.parse(options.image_size, options.fps).apply(raw)
     except InputError as exc:
-        if exc.field != "image_size" or size is None:
+        if exc.field not in ("image_size", "fps"):
             raise
         raise InputError(exc.message, file=exc.file, camera=exc.camera, frame=exc.frame,
-                         field="options.image_size") from None
+                         field=f"options.{exc.field}") from None
     if tracks.n_detections == 0:
         raise InputError("the file holds no detections", file=str(path), camera=camera)
-    return tracks
+    return tracks, notes
 
 
 def check_session(tracks: list[Tracks]) -> None:

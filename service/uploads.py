@@ -225,7 +225,7 @@ def validate_submission(sub: Submission, settings: Settings) -> None:
             try:
                 if is_zip(path):
                     path = safe_extract(path, work / f.role, limits, file=f.client_name or f.role)
-                tracks.append(read_camera(path, f.role, sub.options, limits))
+                tracks.append(read_camera(path, f.role, sub.options, limits)[0])
             except CascalibError as exc:
                 raise _relocate(exc, sub, work) from None
             except ImportError as exc:

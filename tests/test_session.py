@@ -9,7 +9,12 @@ import pytest
 
 from cascalib import InputError, Tracks
 from cascalib.formats import write_tracks
-from cascalib.session import apply_overrides, load_session, parse_camera_values
+from cascalib.session import (
+    apply_overrides,
+    load_session,
+    parse_camera_values,
+    resolve_session,
+)
 
 
 def _write(tmp_path, name, fmt="coco", **kw):
@@ -35,6 +40,22 @@ def test_frame_rate_in_file_wins_over_global_but_not_over_per_camera(tmp_path):
     assert t.image_size == (800, 600) and t.fps == 50.0
     t = load_session([a], image_size={"cam0": "800x600"}, fps={"cam0": 25})[0]
     assert t.image_size == (800, 600) and t.fps == 25.0
+
+
+def test_a_given_frame_rate_the_file_contradicts_is_a_warning(tmp_path, caplog):
+    """Either way the rule goes, the caller hears of it: in the warnings, not only a log."""
+    a = _write(tmp_path, "cam0", fmt="native-json", image_size=(800, 600), fps=50.0)
+    b = _write(tmp_path, "cam1", fmt="native-json", image_size=(800, 600), fps=30.0)
+    tracks, warnings = resolve_session([a, b], fps=["30", "cam0=25"])
+    assert [t.fps for t in tracks] == [25.0, 30.0]
+    assert warnings == ["camera cam0: the given 25 fps replaces the 50 fps its file records"]
+    tracks, warnings = resolve_session([a, b], fps=25)
+    assert [t.fps for t in tracks] == [50.0, 30.0]
+    assert len(warnings) == 2 and "the 25 fps given for every camera is not used" in warnings[0]
+    assert resolve_session([a, b], fps={"cam0": 50, "cam1": 30})[1] == []
+    caplog.set_level("WARNING")
+    load_session([a], fps={"cam0": 25})  # the plain loader logs what it cannot return
+    assert "replaces the 50 fps" in caplog.text
 
 
 @pytest.mark.parametrize("given", ["1920x1080", {"cam0": "1024x768"}, {"cam0": "1x1"}])

@@ -102,7 +102,7 @@ def files_line(folder: Path, files: list[Path]) -> str:
 def run(args: argparse.Namespace) -> int:
     from cascalib.errors import InputError
     from cascalib.pipeline import calibrate
-    from cascalib.session import load_session
+    from cascalib.session import resolve_session
 
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
     bad = [f for f in formats if f not in FORMATS]
@@ -110,8 +110,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"unknown format(s) {bad}; choose from {','.join(FORMATS)}",
                          field="formats")
     config = build_config(args)
-    tracks = load_session(args.inputs, image_size=args.image_size, fps=args.fps,
-                          skeleton=args.skeleton)
+    tracks, input_warnings = resolve_session(args.inputs, image_size=args.image_size,
+                                             fps=args.fps, skeleton=args.skeleton)
     quiet = args.quiet or args.json
     with StageProgress(quiet=quiet) as progress:
         result = calibrate(tracks, config, progress=progress)
@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         written = result.save(args.output, formats=formats, report=not args.no_report)
         progress("save", 1.0)
     summary = result.summary() | {"outputs": {k: str(v) for k, v in written.items()}}
+    summary["warnings"] = input_warnings + summary["warnings"]
     if args.json:
         print(json.dumps(summary, indent=2))
     elif not args.quiet:

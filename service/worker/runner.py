@@ -58,9 +58,11 @@ class _Names:
 
 
 def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
-                 names: _Names) -> list[Any]:
+                 names: _Names) -> tuple[list[Any], list[str]]:
+    """The cameras' tracks with the options filled in, and the warnings that raised."""
     options = JobOptions.model_validate(job.options)
     tracks: list[Any] = []
+    notes: list[str] = []
     for f in (f for f in job.files if f.kind == "input"):
         path = job_dir / f.path
         names.paths[str(path)] = f.client_name or f.role
@@ -71,9 +73,11 @@ def _load_tracks(job: Any, job_dir: Path, work: Path, limits: ZipLimits,
             path = safe_extract(path, work / f"cam_{len(tracks)}", limits,
                                 file=f.client_name or f.role)
             names.paths[str(path)] = f.client_name or f.role
-        tracks.append(read_camera(path, f.role, options, limits))
+        camera, why = read_camera(path, f.role, options, limits)
+        tracks.append(camera)
+        notes += why
     check_session(tracks)
-    return tracks
+    return tracks, notes
 
 
 EXPORT_ERRORS = "export_errors.json"
@@ -155,10 +159,10 @@ def run_job(job_id: str, store: Store, progress: Progress, *,
     )
 
     with tempfile.TemporaryDirectory(dir=job_dir) as tmp:
-        tracks = _load_tracks(job, job_dir, Path(tmp), limits, names)
+        tracks, notes = _load_tracks(job, job_dir, Path(tmp), limits, names)
         result = calibrate(tracks, config, progress=progress)
     progress("saving", 1.0)
-    return _save_outputs(result, job_dir), [names.clean(w) for w in result.warnings()]
+    return _save_outputs(result, job_dir), [names.clean(w) for w in notes + result.warnings()]
 
 
 class _Reporter:

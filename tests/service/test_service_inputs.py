@@ -115,3 +115,33 @@ def test_npz_unpacking_past_the_limit_refused_before_unpacking(tmp_path: Path) -
     with pytest.raises(LimitExceeded, match="unpack to") as info:
         read_camera(path, "cam0", JobOptions(), limits)
     assert (info.value.camera, info.value.field) == ("cam0", "keypoints")
+
+
+def test_given_values_follow_the_command_lines_rule(tmp_path: Path) -> None:
+    """The service fills in fps and image size with the CLI's function: this camera's fps
+    beats the file's, one for every camera loses to it, and both say so; a size the file
+    contradicts is refused, naming the option."""
+    from api_schemas import JobOptions
+    from cascalib import Tracks
+    from cascalib.formats import write_tracks
+    from cascalib.session import GivenValues
+    from service.inputs import read_camera
+
+    kp = np.random.default_rng(0).uniform(10, 400, (6, 1, 17, 3))
+    path = write_tracks(Tracks("cam0", kp, "coco17", image_size=(800, 600), fps=50.0),
+                        tmp_path / "cam0.json", format="native-json")
+    raw = Tracks("cam0", kp, "coco17", image_size=(800, 600), fps=50.0)
+    for options in ({"fps": {"cam0": 25}}, {"fps": 25}, {"fps": 50, "image_size": "800x600"},
+                    {}):
+        tracks, notes = read_camera(path, "cam0", JobOptions.model_validate(options), LIMITS)
+        expected = GivenValues.parse(options.get("image_size"), options.get("fps")).apply(raw)
+        assert (tracks.fps, tracks.image_size, notes) == (expected[0].fps,
+                                                          expected[0].image_size, expected[1])
+    tracks, notes = read_camera(path, "cam0", JobOptions(fps={"cam0": 25}), LIMITS)
+    assert tracks.fps == 25.0 and notes == [
+        "camera cam0: the given 25 fps replaces the 50 fps its file records"]
+    tracks, notes = read_camera(path, "cam0", JobOptions(fps=25), LIMITS)
+    assert tracks.fps == 50.0 and "not used" in notes[0]
+    with pytest.raises(InputError) as err:
+        read_camera(path, "cam0", JobOptions(image_size={"cam0": "1024x768"}), LIMITS)
+    assert err.value.field == "options.image_size" and err.value.camera == "cam0"
