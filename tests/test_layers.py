@@ -10,7 +10,7 @@ from pathlib import Path
 
 import cascalib
 
-WEB = ("service", "fastapi", "sqlalchemy")
+WEB = ("service", "api_schemas", "fastapi", "sqlalchemy")
 
 _SCRIPT = """
 import importlib, json, pkgutil, sys
