@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from cascalib.plots import (
     plot_birdseye,
@@ -27,9 +26,12 @@ from cascalib.plots import (
 from cascalib.stages.align import AlignmentResult
 
 if TYPE_CHECKING:
-    from cascalib.pipeline import CalibrationResult
+    from concurrent.futures import Future
 
-__all__ = ["write_report", "reprojection_errors"]
+    from cascalib.pipeline import CalibrationResult
+    from cascalib.workers import WorkerPool
+
+__all__ = ["ReportFigures", "write_report", "reprojection_errors"]
 
 log = logging.getLogger(__name__)
 
@@ -56,11 +58,6 @@ GLOSSARY = (
     ("verdict", "accepted: all checks passed; suspicious: a check failed (the reason says "
                 "which), use with care; failed: do not use this camera."),
 )
-
-
-def _png(fig: Figure, path: Path) -> str:
-    save_figure(fig, path)
-    return base64.b64encode(path.read_bytes()).decode("ascii")
 
 
 #: Most person-frames whose keypoints the reprojection histograms show: evenly spread, they
@@ -117,32 +114,93 @@ def _camera_table(result: CalibrationResult) -> str:
             + "</table>")
 
 
-def _stage_figures(result: CalibrationResult) -> list[tuple[str, str, Figure]]:
-    """(section, caption, figure) for every plot, in reading order."""
-    figs: list[tuple[str, str, Figure]] = []
-    sv_plot = _optional("cascalib.stages.single_view_plot", "plot_single_view")
-    if sv_plot is not None:
-        for name, sv in result.single_view.items():
-            figs.append(("Stage I: single-view ground plane", f"{name}: 1 m ground grid and "
-                         "inlier (green) / outlier (red) ankle-to-shoulder segments", sv_plot(sv)))
-    staged = isinstance(result.alignment, AlignmentResult)  # else the multi-view start
-    sync_plot = _optional("cascalib.stages.align_plot", "plot_sync_curves")
-    if sync_plot is not None and staged:
+def _figure_list(result: CalibrationResult) -> list[tuple[str, str, str, str]]:
+    """(section, caption, kind, camera) of every plot, in reading order (see :func:`_draw`)."""
+    figs: list[tuple[str, str, str, str]] = []
+    if _optional("cascalib.stages.single_view_plot", "plot_single_view") is not None:
+        figs += [("Stage I: single-view ground plane", f"{name}: 1 m ground grid and inlier "
+                  "(green) / outlier (red) ankle-to-shoulder segments", "single_view", name)
+                 for name in result.single_view]
+    align = result.alignment
+    staged = isinstance(align, AlignmentResult)  # else the multi-view start
+    if staged and _optional("cascalib.stages.align_plot", "plot_sync_curves") is not None:
         figs.append(("Stages II-IV: synchronisation", "Sync cost per camera pair with the "
-                     "chosen offset", sync_plot(result.alignment)))
-    epi_plot = _optional("cascalib.stages.align_plot", "plot_epipolar_curves")
-    epi_fig = epi_plot(result.alignment) if epi_plot is not None and staged else None
-    if epi_fig is not None:
-        figs.append(("Stages II-IV: synchronisation", "Sub-frame clocks: the epipolar "
-                     "consistency of the people's joints per camera pair over the clock shift "
-                     "(lower is better), with the shift chosen in each iteration", epi_fig))
+                     "chosen offset", "sync", ""))
+        if align.epipolar is not None and align.epipolar.pairs:  # type: ignore[union-attr]
+            figs.append(("Stages II-IV: synchronisation", "Sub-frame clocks: the epipolar "
+                         "consistency of the people's joints per camera pair over the clock "
+                         "shift (lower is better), with the shift chosen in each iteration",
+                         "epipolar", ""))
     figs.append(("Cameras and trajectories", "Bird's-eye view of the final cameras and the "
-                 "triangulated feet", plot_birdseye(result.calibration, result.poses.joints)))
+                 "triangulated feet", "birdseye", ""))
     figs.append(("Cameras and trajectories", "3D view of the cameras and a few poses",
-                 plot_rig_3d(result.calibration, result.poses.joints)))
+                 "rig_3d", ""))
     figs.append(("Reprojection errors", "Per camera, after the bundle adjustment",
-                 plot_reprojection_histograms(reprojection_errors(result))))
+                 "reprojection", ""))
     return figs
+
+
+def _draw(result: CalibrationResult, kind: str, camera: str, path: str) -> str:
+    """Draw one plot of :func:`_figure_list` and write it as PNG to ``path``."""
+    if kind == "single_view":
+        fig = _optional("cascalib.stages.single_view_plot", "plot_single_view")(
+            result.single_view[camera])
+    elif kind in ("sync", "epipolar"):
+        fig = _optional("cascalib.stages.align_plot", "plot_sync_curves" if kind == "sync"
+                        else "plot_epipolar_curves")(result.alignment)
+    elif kind == "birdseye":
+        fig = plot_birdseye(result.calibration, result.poses.joints)
+    elif kind == "rig_3d":
+        fig = plot_rig_3d(result.calibration, result.poses.joints)
+    else:
+        fig = plot_reprojection_histograms(reprojection_errors(result))
+    save_figure(fig, path)
+    return path
+
+
+#: Plots that take longest to draw, started first so that the workers end together.
+_SLOW_FIRST = ("epipolar", "sync", "reprojection", "rig_3d", "birdseye", "single_view")
+
+
+class ReportFigures:
+    """The report's plots (:func:`_figure_list`), drawn into ``outdir`` from the moment this
+    object is made.
+
+    Where this process can fork, forked worker processes draw them (each inherits ``result``)
+    while the caller goes on, e.g. writing the poses; else they are drawn here one after the
+    other, as pyplot cannot draw in several threads at once. :meth:`wait` for them.
+    """
+
+    def __init__(self, result: CalibrationResult, outdir: str | Path) -> None:
+        from cascalib.workers import WorkerPool, can_fork
+
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        self.figures = _figure_list(result)
+        self.pngs = [outdir / f"report_{i:02d}.png" for i in range(len(self.figures))]
+        jobs = [(kind, camera, str(png)) for (_, _, kind, camera), png
+                in zip(self.figures, self.pngs, strict=True)]
+        cfg = result.config.align
+        n = min(cfg.n_workers, len(jobs)) if cfg.processes and can_fork() else 1
+        self._pool: WorkerPool | None = None
+        self._futures: list[Future[str]] = []
+        if n <= 1:
+            for job in jobs:
+                _draw(result, *job)
+            return
+        self._pool = WorkerPool(n, result)
+        # the slowest first, so that the workers end together
+        for job in sorted(jobs, key=lambda job: _SLOW_FIRST.index(job[0])):
+            self._futures.append(self._pool.submit(_draw, *job))
+
+    def wait(self) -> None:
+        """Wait until every plot is written (raising a worker's error) and stop the workers."""
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        with pool:
+            for future in self._futures:
+                future.result()
 
 
 def _optional(module: str, name: str):  # noqa: ANN202 - returns a plot function or None
@@ -160,10 +218,17 @@ img{max-width:100%;border:1px solid #ddd;margin:6px 0}figure{margin:0 0 1.5em 0}
 """
 
 
-def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
-    """Write ``report.html`` and its ``report_*.png`` plots into ``outdir``; return its path."""
+def write_report(result: CalibrationResult, outdir: str | Path,
+                 figures: ReportFigures | None = None) -> Path:
+    """Write ``report.html`` and its ``report_*.png`` plots into ``outdir``; return its path.
+
+    ``figures``: the plots, already being drawn into ``outdir`` (default: drawn now).
+    """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
+    if figures is None:
+        figures = ReportFigures(result, outdir)
+    figures.wait()
     verdicts = [q.verdict for q in result.refinement.quality.values()]
     overall = "failed" if "failed" in verdicts else (
         "suspicious" if "suspicious" in verdicts else "accepted")
@@ -176,11 +241,11 @@ def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
              f"{sum(result.timings.values()):.1f} s</p>",
              _warnings(result), "<h2>Cameras</h2>", _camera_table(result)]
     section = None
-    for i, (sec, caption, fig) in enumerate(_stage_figures(result)):
+    for (sec, caption, _, _), png in zip(figures.figures, figures.pngs, strict=True):
         if sec != section:
             parts.append(f"<h2>{html.escape(sec)}</h2>")
             section = sec
-        data = _png(fig, outdir / f"report_{i:02d}.png")
+        data = base64.b64encode(png.read_bytes()).decode("ascii")
         parts.append(f"<figure><img src='data:image/png;base64,{data}'>"
                      f"<figcaption>{html.escape(caption)}</figcaption></figure>")
     parts.append("<h2>What the numbers mean</h2><dl>")

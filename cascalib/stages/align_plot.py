@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from cascalib.plots import fixed_layout  # noqa: E402
 from cascalib.stages.align import AlignmentResult  # noqa: E402
 
 __all__ = ["plot_epipolar_curves", "plot_sync_curves", "plot_ground_alignment"]
@@ -57,7 +58,7 @@ def plot_sync_curves(result: AlignmentResult, path: str | Path | None = None) ->
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
-    fig.tight_layout()
+    fixed_layout(fig)
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig
@@ -101,7 +102,7 @@ def plot_epipolar_curves(result: AlignmentResult, path: str | Path | None = None
         ax.legend(fontsize=6)
     for ax in axes.ravel()[len(keys):]:
         ax.axis("off")
-    fig.tight_layout()
+    fixed_layout(fig)
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig

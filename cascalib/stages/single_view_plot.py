@@ -95,7 +95,8 @@ def plot_single_view(result: SingleViewResult, frame: NDArray[np.uint8] | None =
     ax.legend(loc="lower right", fontsize=8)
     ax.set_xticks([])
     ax.set_yticks([])
-    fig.tight_layout()
+    # fixed margins (no ticks; a one-line title), cheaper than measuring with tight_layout
+    fig.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=1 - 0.35 / (8 * h / w))
     if path is not None:
         fig.savefig(path)
     return fig
