@@ -127,6 +127,7 @@ def test_cli_calibrate_json_summary(scene, tmp_path, capsys):
     assert out["ok"] == (code == 0)
     assert [c["name"] for c in out["cameras"]] == [t.camera for t in scene.tracks]
     assert (tmp_path / "out" / "calibration.json").exists()
+    assert set(out["input_timings_s"]) == {"imports", "configuration", "reading", "checks"}
 
 
 def test_cli_reports_missing_image_size_clearly(scene, tmp_path, capsys):
