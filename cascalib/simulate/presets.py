@@ -17,6 +17,11 @@ sports             6       12       40 x 20     50 / 60              far, small 
 phones             4       3        6 x 6       30 / 60 / 29.97      portrait, drift, late start
 one_spot           4       1        1 x 1       60, synchronised     one person in one spot, 12 s
 desk               4       1        1 x 1       30, synchronised     upper bodies close up, barrel
+gait               3       1        6 x 1       30                   one walker back and forth, 65 s
+horizontal         4       3        6 x 6       30                   level cameras: ground unseen
+short_clip         4       3        3 x 3       30                   12 s, people standing, turning
+fisheye_webcam     4       2        3 x 3       30                   k1 about -0.34, full bodies
+mixed_rates        4       4        10 x 10     30 / 25 / 30 / 29.97 non-integer rate ratios
 clean              4       4        10 x 10     25                   perfect detector (tests)
 =================  ======  =======  ==========  ===================  ===========================
 
@@ -137,6 +142,57 @@ PRESETS: dict[str, SceneConfig] = {
                       target_height=1.35, fov_range_deg=(70, 90), image_sizes=((1280, 720),),
                       radial_distortion=0.3, roll_sd_deg=3.0),
         timing=TimingConfig(fps=(30.0,), max_offset_s=0.0),
+        detector=REALISTIC_DETECTOR),
+    "gait": SceneConfig(
+        description="A gait recording: one person walking back and forth along 6 m for 65 s, "
+        "3 portrait phones 480x640 at 1.0-1.5 m, 30 fps, unknown offsets",
+        duration_s=65,
+        people=PeopleConfig(n_persons=1, area=(6.0, 1.0), curviness=0.0, pause_prob=0.2,
+                            pause_range_s=(0.5, 2.0), action_prob=0.0, walk_mean_s=6.0),
+        rig=RigConfig(n_cameras=3, height_range=(1.0, 1.5), distance_range=(4.0, 6.0),
+                      azimuth_jitter_deg=25, target_jitter=0.05, fov_range_deg=(60, 75),
+                      image_sizes=((640, 480),), portrait_prob=1.0, roll_sd_deg=2.0),
+        timing=TimingConfig(fps=(30.0,), max_offset_s=3.0),
+        detector=REALISTIC_DETECTOR),
+    "horizontal": SceneConfig(
+        description="Cameras nearly level (pitch 0-3 deg down, 1.1-1.5 m high, 7-9 m out): "
+        "the ground plane is seen edge-on; 3 people, 30 fps, offsets up to 3 s",
+        duration_s=40,
+        people=PeopleConfig(n_persons=3, area=(6, 6)),
+        rig=RigConfig(n_cameras=4, height_range=(1.1, 1.5), distance_range=(7.0, 9.0),
+                      target_height=1.05, target_jitter=0.05, fov_range_deg=(55, 75),
+                      image_sizes=((1920, 1080),), roll_sd_deg=1.0),
+        timing=TimingConfig(fps=(30.0,), max_offset_s=3.0),
+        detector=REALISTIC_DETECTOR),
+    "short_clip": SceneConfig(
+        description="A 12 s clip: 3 people mostly standing and turning in place on 3x3 m, "
+        "4 cameras at 1.6-2.2 m, 30 fps, offsets up to 1 s",
+        duration_s=12,
+        people=PeopleConfig(n_persons=3, area=(3.0, 3.0), speed_range=(0.3, 0.6),
+                            pause_prob=0.9, turn_prob=1.0, walk_mean_s=1.0,
+                            pause_range_s=(1.5, 4.0)),
+        rig=RigConfig(n_cameras=4, height_range=(1.6, 2.2), distance_range=(4.0, 5.5),
+                      fov_range_deg=(55, 75), image_sizes=((1920, 1080), (1280, 720))),
+        timing=TimingConfig(fps=(30.0,), max_offset_s=1.0),
+        detector=REALISTIC_DETECTOR),
+    "fisheye_webcam": SceneConfig(
+        description="4 wide webcams 1280x720 with strong barrel distortion (k1 -0.31 to -0.36, "
+        "caliscope's), 2.5-3.5 m from 2 people walking on 3x3 m, full bodies, 30 fps",
+        duration_s=30,
+        people=PeopleConfig(n_persons=2, area=(3.0, 3.0), speed_range=(0.6, 1.2)),
+        rig=RigConfig(n_cameras=4, height_range=(1.6, 2.2), distance_range=(3.5, 4.5),
+                      target_height=0.9, fov_range_deg=(80, 95), image_sizes=((1280, 720),),
+                      radial_distortion=0.36, radial_distortion_min=0.86, roll_sd_deg=2.0),
+        timing=TimingConfig(fps=(30.0,), max_offset_s=2.0),
+        detector=REALISTIC_DETECTOR),
+    "mixed_rates": SceneConfig(
+        description="Terrace rig at 30 / 25 / 30 / 29.97 fps in turn (rate ratios that are "
+        "not whole numbers), 4 people, offsets up to 3 s",
+        duration_s=40,
+        people=PeopleConfig(n_persons=4, area=(10, 10)),
+        rig=_rig("terrace"),
+        timing=TimingConfig(fps=(30.0, 25.0, 30.0, STANDARD_FPS[1]), fps_in_turn=True,
+                            max_offset_s=3.0),
         detector=REALISTIC_DETECTOR),
     "clean": SceneConfig(
         description="Terrace rig with a perfect detector (projected truth): for tests",

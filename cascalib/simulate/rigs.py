@@ -44,9 +44,13 @@ class RigConfig(BaseModel):
         default=0.03, ge=0, lt=0.5, description="Max principal point offset from the image centre, "
         "as a fraction of the image size.")
     radial_distortion: float = Field(
-        default=0.0, ge=0, le=0.3,
+        default=0.0, ge=0, le=0.5,
         description="Max |k1| (barrel, k1 < 0); k2 is drawn at a fifth of "
         "it; 0 disables distortion.")
+    radial_distortion_min: float = Field(
+        default=0.2, ge=0, le=1,
+        description="Least |k1| as a fraction of `radial_distortion` (|k1| is drawn uniformly "
+        "between them): near 1 for lenses that all bend alike, such as one webcam model.")
     tangential_distortion: float = Field(
         default=0.0, ge=0, le=0.01, description="s.d. of p1, p2.")
     roll_sd_deg: float = Field(default=2.0, ge=0, description="s.d. of the camera roll (deg).")
@@ -104,7 +108,7 @@ def _intrinsics(cfg: RigConfig, rng: np.random.Generator
     c = ((w - 1) / 2 + off[0], (h - 1) / 2 + off[1])
     dist = np.zeros(5)
     if cfg.radial_distortion > 0:
-        k1 = -rng.uniform(0.2, 1.0) * cfg.radial_distortion
+        k1 = -rng.uniform(cfg.radial_distortion_min, 1.0) * cfg.radial_distortion
         dist[0], dist[1] = k1, -0.2 * k1 * rng.uniform(0, 1)
     if cfg.tangential_distortion > 0:
         dist[2:4] = rng.normal(0, cfg.tangential_distortion, 2)
