@@ -36,7 +36,7 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
 
     The figure is drawn once, with the layout it was made with (``bbox_inches="tight"`` would
     draw it twice to crop it); zlib level 1 packs the plots' flat colours almost as small as
-    the default level 6, in far less time.
+    the default level 6, in less time.
     """
     path = Path(path)
     fig.savefig(path, dpi=dpi, pil_kwargs={"compress_level": 1})
