@@ -177,7 +177,7 @@ PRESETS: dict[str, SceneConfig] = {
         detector=REALISTIC_DETECTOR),
     "fisheye_webcam": SceneConfig(
         description="4 wide webcams 1280x720 with strong barrel distortion (k1 -0.31 to -0.36, "
-        "caliscope's), 2.5-3.5 m from 2 people walking on 3x3 m, full bodies, 30 fps",
+        "caliscope's), 3.5-4.5 m from the middle of 3x3 m where 2 people walk, full bodies, 30 fps",
         duration_s=30,
         people=PeopleConfig(n_persons=2, area=(3.0, 3.0), speed_range=(0.6, 1.2)),
         rig=RigConfig(n_cameras=4, height_range=(1.6, 2.2), distance_range=(3.5, 4.5),
