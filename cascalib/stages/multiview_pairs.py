@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from cascalib.stages.epipolar_sync import fit_fundamental, sampson_distance
 
@@ -38,6 +39,13 @@ RANSAC_THRESHOLD = 0.01
 GROUP_GATE = 1.5
 #: Most candidate correspondences fed to RANSAC (instants are subsampled beyond it).
 MAX_CANDIDATES = 20000
+#: A detection whose joints sit within this many pixels (median) of an earlier instant's is a
+#: repeat: the robust fit leaves it out, since copies of a figure that never moves (mannequin,
+#: poster, composited figure) would outvote the people who move. Detector jitter of a person
+#: holding still is about a pixel.
+STATIC_PX = 0.5
+#: Earlier detections (nearest by centroid) each detection is compared with.
+STATIC_NEIGHBOURS = 8
 
 
 @dataclass(frozen=True)
@@ -90,6 +98,33 @@ class _Candidates:
     pa: NDArray[np.int64]
     pb: NDArray[np.int64]
     ok: NDArray[np.bool_]  # (G, J)
+
+
+def repeats(v: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Detections that repeat an earlier instant's to within :data:`STATIC_PX`, shape (T, P).
+
+    Parameters
+    ----------
+    v : ndarray, shape (T, P, J, 3)
+        One camera's detections (x, y, confidence; NaN missing).
+    """
+    seen = np.nan_to_num(v[..., 2]) >= MIN_CONFIDENCE
+    xy = np.where(seen[..., None], v[..., :2], np.nan)
+    t, p = np.nonzero(seen.sum(-1) >= MIN_SHARED_JOINTS)
+    out = np.zeros(seen.shape[:2], dtype=bool)
+    if t.size < 2:
+        return out
+    with np.errstate(invalid="ignore"):
+        centre = np.nanmean(xy[t, p], axis=1)
+    k = min(STATIC_NEIGHBOURS + 1, t.size)
+    _, near = cKDTree(centre).query(centre, k=k, distance_upper_bound=4 * STATIC_PX)
+    for row, cols in enumerate(near.reshape(t.size, -1)):
+        earlier = cols[(cols < t.size) & (t[np.minimum(cols, t.size - 1)] < t[row])]
+        if earlier.size:
+            d = np.linalg.norm(xy[t[earlier], p[earlier]] - xy[t[row], p[row]], axis=-1)
+            with np.errstate(all="ignore"):
+                out[t[row], p[row]] = bool(np.any(np.nanmedian(d, axis=1) < STATIC_PX))
+    return out
 
 
 def _candidates(va: NDArray[np.float64], vb: NDArray[np.float64], rng: np.random.Generator
@@ -169,7 +204,10 @@ def match_pair(i: int, j: int, va: NDArray[np.float64], vb: NDArray[np.float64],
         return None
     xa, xb, g = _points(va, vb, cand)
     thr = RANSAC_THRESHOLD * diagonal
-    F, _ = cv2.findFundamentalMat(xa, xb, cv2.USAC_MAGSAC, thr, 0.9999, 20000)
+    fresh = ~(repeats(va)[cand.t, cand.pa] & repeats(vb)[cand.t, cand.pb])[g]
+    if fresh.sum() < MIN_SHARED_JOINTS * min_groups:  # a still scene: every copy counts
+        fresh[:] = True
+    F, _ = cv2.findFundamentalMat(xa[fresh], xb[fresh], cv2.USAC_MAGSAC, thr, 0.9999, 20000)
     if F is None or F.shape != (3, 3):
         return None
     # OpenCV's F has x_b^T F x_a = 0: transposed, x_a^T F x_b = 0

@@ -40,6 +40,7 @@ from cascalib.camera import Camera
 from cascalib.geometry import rodrigues_to_matrix
 from cascalib.nanstats import nanmean
 from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_pair
+from cascalib.stages.stature import joint_points, metric_scale, moving_groups
 from cascalib.stages.triangulation import triangulate
 
 __all__ = ["MultiviewStart", "PersonGroups", "WorldFrame", "join_matches", "multiview_start",
@@ -522,15 +523,6 @@ def _reprojection(cams: list[Camera | None], points: NDArray[np.float64], uv: ND
     return out
 
 
-#: Segment lengths as fractions of standing height (Drillis & Contini 1966, joint centres):
-#: the bones that carry the metric scale of the multi-view start.
-SEGMENT_FRACTIONS: dict[tuple[str, str], float] = {
-    ("neck", "mid_hip"): 0.288, ("left_hip", "left_knee"): 0.245,
-    ("right_hip", "right_knee"): 0.245, ("left_knee", "left_ankle"): 0.246,
-    ("right_knee", "right_ankle"): 0.246, ("left_shoulder", "left_elbow"): 0.186,
-    ("right_shoulder", "right_elbow"): 0.186, ("left_elbow", "left_wrist"): 0.146,
-    ("right_elbow", "right_wrist"): 0.146,
-}
 #: Pairs (lower, upper) whose direction, averaged over the people, is the world's up, in order
 #: of preference: the trunk, else the head above the shoulders (upper bodies only).
 UP_PAIRS = (("mid_hip", "neck"), ("neck", "nose"))
@@ -569,14 +561,6 @@ class WorldFrame:
     ground: bool
 
 
-def _joint(points: NDArray[np.float64], joints: NDArray[np.int64], name: str
-           ) -> NDArray[np.float64]:
-    from cascalib.skeletons import CANONICAL_INDEX
-
-    where = np.flatnonzero(joints == CANONICAL_INDEX[name])
-    return points[:, where[0]] if where.size else np.full((len(points), 3), np.nan)
-
-
 def _up(points: NDArray[np.float64], joints: NDArray[np.int64]) -> tuple[NDArray[np.float64], str]:
     """The world's up from the people: their trunks; or, where they stand on their legs and lean
     (the trunks more than :data:`LEAN_DEG` off), the line from the foot they stand on to their
@@ -594,7 +578,7 @@ def _up(points: NDArray[np.float64], joints: NDArray[np.int64]) -> tuple[NDArray
 def _trunk_up(points: NDArray[np.float64], joints: NDArray[np.int64]
               ) -> tuple[NDArray[np.float64], str]:
     for lo, hi in UP_PAIRS:
-        d = _joint(points, joints, hi) - _joint(points, joints, lo)
+        d = joint_points(points, joints, hi) - joint_points(points, joints, lo)
         d = d[np.isfinite(d).all(1)]
         if len(d) >= MIN_UP_GROUPS:
             u = np.median(d / np.linalg.norm(d, axis=1, keepdims=True), axis=0)
@@ -612,9 +596,9 @@ def _stance(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArray[
             ) -> NDArray[np.float64]:
     """Per group, the foot it stands on along ``up``: the lower ankle, or both ankles' middle
     when they are at one height (within a tenth of the leg)."""
-    la, ra = _joint(points, joints, "left_ankle"), _joint(points, joints, "right_ankle")
+    la, ra = joint_points(points, joints, "left_ankle"), joint_points(points, joints, "right_ankle")
     zl, zr = la @ up, ra @ up
-    leg = _finite_median(np.linalg.norm(_joint(points, joints, "left_hip") - la, axis=1))
+    leg = _finite_median(np.linalg.norm(joint_points(points, joints, "left_hip") - la, axis=1))
     lower = np.where((zl <= zr) | ~np.isfinite(zr), 0, 1)[:, None]
     one = np.where(lower == 0, la, ra)
     both = np.isfinite(zl) & np.isfinite(zr) & (np.abs(zl - zr) < 0.1 * leg)
@@ -641,27 +625,14 @@ def _standing(points: NDArray[np.float64], joints: NDArray[np.int64], up: NDArra
               ) -> bool:
     """Whether the people stand on their legs along ``up``: the hips above the stance foot by
     most of the leg's length (seated, the legs lie nearly level)."""
-    hip = _joint(points, joints, "mid_hip")
-    leg = _finite_median(np.linalg.norm(_joint(points, joints, "left_hip")
-                                        - _joint(points, joints, "left_knee"), axis=1)
-                         + np.linalg.norm(_joint(points, joints, "left_knee")
-                                          - _joint(points, joints, "left_ankle"), axis=1))
+    hip = joint_points(points, joints, "mid_hip")
+    leg = _finite_median(np.linalg.norm(joint_points(points, joints, "left_hip")
+                                        - joint_points(points, joints, "left_knee"), axis=1)
+                         + np.linalg.norm(joint_points(points, joints, "left_knee")
+                                          - joint_points(points, joints, "left_ankle"), axis=1))
     rise = (hip - _stance(points, joints, up)) @ up
     rise = rise[np.isfinite(rise)]
     return bool(rise.size >= MIN_UP_GROUPS and np.median(rise) > STANDING_LEG_FRACTION * leg)
-
-
-def _scale(points: NDArray[np.float64], joints: NDArray[np.int64], height: float) -> float:
-    """Metres per bundle unit: the median over segments of the height each one implies."""
-    implied = []
-    for (a, b), frac in SEGMENT_FRACTIONS.items():
-        d = np.linalg.norm(_joint(points, joints, b) - _joint(points, joints, a), axis=1)
-        d = d[np.isfinite(d)]
-        if d.size >= MIN_UP_GROUPS:
-            implied.append(np.median(d) / frac)
-    if not implied:
-        raise ValueError("no limb or trunk seen by two cameras: the metric scale is unknown")
-    return float(height / np.median(implied))
 
 
 def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras: list[Camera],
@@ -675,6 +646,9 @@ def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras:
     ValueError
         When neither trunk nor head, or no limb, is seen by two cameras.
     """
+    moving = moving_groups(points)
+    if moving.sum() >= MIN_UP_GROUPS:
+        points = points[moving]
     up, up_from = _up(points, joints)
     reference = cameras[0]
     fwd = reference.R[2] - up * (reference.R[2] @ up)
@@ -682,13 +656,13 @@ def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras:
         fwd = reference.R[0] - up * (reference.R[0] @ up)
     x = fwd / np.linalg.norm(fwd)
     R = np.stack([x, np.cross(up, x), up])
-    s = _scale(points, joints, height)
+    s = metric_scale(points, joints, height)
     P = points.reshape(-1, 3) @ R.T * s
     stance = _stance(points, joints, up)
     az = (stance[np.isfinite(stance).all(1)] @ R.T * s)[:, 2]
     ground = az.size >= MIN_UP_GROUPS
     z0 = (np.median(az) - ankle_height) if ground else float(np.nanmin(P[:, 2]))
-    hips = _joint(points, joints, "mid_hip") @ R.T * s
+    hips = joint_points(points, joints, "mid_hip") @ R.T * s
     hips = hips[np.isfinite(hips).all(1)]
     centre = np.median(hips if len(hips) else P[np.isfinite(P).all(1)], axis=0)
     return WorldFrame(s, R, np.array([-centre[0], -centre[1], -z0]), up_from, ground)

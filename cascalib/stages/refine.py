@@ -71,6 +71,7 @@ from cascalib.stages.refine_problem import (
     track_targets,
 )
 from cascalib.stages.refine_result import RefineResult, with_failed_camera
+from cascalib.stages.stature import rescale_to_statures
 from cascalib.stages.time_refine import refine_offsets, regroup
 from cascalib.step_seconds import account, timed
 from cascalib.tracks import Tracks
@@ -654,6 +655,11 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
         sigmas = [s | {"time_offset": float(v)} for s, v in zip(sigmas, clock_sd, strict=True)]
     with timed("reconstruction"):
         final, points, err = reconstruct(data, cameras, cfg, height)
+        cameras, points, factor = rescale_to_statures(cameras, points, height)
+        final = replace(final, ground=factor * final.ground,
+                        velocity=None if final.velocity is None else factor * final.velocity)
+        log.info("metric scale from the people's leg-and-trunk chains: x%.3f", factor)
+        sigmas = [s | {"position": factor * s["position"]} for s in sigmas]
         prog.step()
         quality = _report(final, err, cameras, sigmas, cfg)
         poses, ids, resid = poses_by_slot(final, points, data.times, err)
