@@ -78,8 +78,7 @@ class CalibrationResult:
     stage_i_advice : dict of str to str
         Why stage I could not decide a camera (the multi-view start replaced it).
     save_timings : dict of str to float
-        Seconds :meth:`save` spent on the calibration files, the poses and the report (the
-        report's plots are drawn while the poses are written: ``report`` is the rest).
+        Seconds :meth:`save` spent on the calibration files, the poses and the report.
     """
 
     calibration: Calibration
@@ -149,23 +148,14 @@ class CalibrationResult:
             paths = save_calibration(self.calibration, _calibration_path(outdir, fmt), fmt)
             written[f"calibration:{fmt}"] = Path(paths[0])
         self.save_timings["calibration"] = (t1 := time.perf_counter()) - t0
-        figures = None
-        if report:  # the report's plots are drawn (in worker processes) while the poses are written
-            from cascalib.report import ReportFigures, write_report
+        for p in self.poses.save(outdir / "poses"):
+            written[f"poses:{p.name}"] = p
+        self.save_timings["poses"] = (t0 := time.perf_counter()) - t1
+        if report:
+            from cascalib.report import write_report
 
-            figures = ReportFigures(self, outdir)
-        t2 = time.perf_counter()
-        try:
-            for p in self.poses.save(outdir / "poses"):
-                written[f"poses:{p.name}"] = p
-        except BaseException:
-            if figures is not None:
-                figures.wait()
-            raise
-        self.save_timings["poses"] = (t3 := time.perf_counter()) - t2
-        if figures is not None:
-            written["report"] = write_report(self, outdir, figures)
-            self.save_timings["report"] = t2 - t1 + time.perf_counter() - t3
+            written["report"] = write_report(self, outdir)
+            self.save_timings["report"] = time.perf_counter() - t0
         return written
 
 

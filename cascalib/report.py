@@ -26,12 +26,9 @@ from cascalib.plots import (
 from cascalib.stages.align import AlignmentResult
 
 if TYPE_CHECKING:
-    from concurrent.futures import Future
-
     from cascalib.pipeline import CalibrationResult
-    from cascalib.workers import WorkerPool
 
-__all__ = ["ReportFigures", "write_report", "reprojection_errors"]
+__all__ = ["write_report", "reprojection_errors"]
 
 log = logging.getLogger(__name__)
 
@@ -158,51 +155,6 @@ def _draw(result: CalibrationResult, kind: str, camera: str, path: str) -> str:
     return path
 
 
-#: Plots that take longest to draw, started first so that the workers end together.
-_SLOW_FIRST = ("epipolar", "sync", "reprojection", "rig_3d", "birdseye", "single_view")
-
-
-class ReportFigures:
-    """The report's plots (:func:`_figure_list`), drawn into ``outdir`` from the moment this
-    object is made.
-
-    Where this process can fork, forked worker processes draw them (each inherits ``result``)
-    while the caller goes on, e.g. writing the poses; else they are drawn here one after the
-    other, as pyplot cannot draw in several threads at once. :meth:`wait` for them.
-    """
-
-    def __init__(self, result: CalibrationResult, outdir: str | Path) -> None:
-        from cascalib.workers import WorkerPool, can_fork
-
-        outdir = Path(outdir)
-        outdir.mkdir(parents=True, exist_ok=True)
-        self.figures = _figure_list(result)
-        self.pngs = [outdir / f"report_{i:02d}.png" for i in range(len(self.figures))]
-        jobs = [(kind, camera, str(png)) for (_, _, kind, camera), png
-                in zip(self.figures, self.pngs, strict=True)]
-        cfg = result.config.align
-        n = min(cfg.n_workers, len(jobs)) if cfg.processes and can_fork() else 1
-        self._pool: WorkerPool | None = None
-        self._futures: list[Future[str]] = []
-        if n <= 1:
-            for job in jobs:
-                _draw(result, *job)
-            return
-        self._pool = WorkerPool(n, result)
-        # the slowest first, so that the workers end together
-        for job in sorted(jobs, key=lambda job: _SLOW_FIRST.index(job[0])):
-            self._futures.append(self._pool.submit(_draw, *job))
-
-    def wait(self) -> None:
-        """Wait until every plot is written (raising a worker's error) and stop the workers."""
-        if self._pool is None:
-            return
-        pool, self._pool = self._pool, None
-        with pool:
-            for future in self._futures:
-                future.result()
-
-
 def _optional(module: str, name: str):  # noqa: ANN202 - returns a plot function or None
     try:
         return getattr(importlib.import_module(module), name)
@@ -218,17 +170,18 @@ img{max-width:100%;border:1px solid #ddd;margin:6px 0}figure{margin:0 0 1.5em 0}
 """
 
 
-def write_report(result: CalibrationResult, outdir: str | Path,
-                 figures: ReportFigures | None = None) -> Path:
+def write_report(result: CalibrationResult, outdir: str | Path) -> Path:
     """Write ``report.html`` and its ``report_*.png`` plots into ``outdir``; return its path.
 
-    ``figures``: the plots, already being drawn into ``outdir`` (default: drawn now).
+    The plots are drawn one after the other in this process: drawn in two forked workers they
+    took no less time on 2 cores shared with other jobs (docs/decisions/writing-speed.md).
     """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    if figures is None:
-        figures = ReportFigures(result, outdir)
-    figures.wait()
+    figures = _figure_list(result)
+    pngs = [outdir / f"report_{i:02d}.png" for i in range(len(figures))]
+    for (_, _, kind, camera), png in zip(figures, pngs, strict=True):
+        _draw(result, kind, camera, str(png))
     verdicts = [q.verdict for q in result.refinement.quality.values()]
     overall = "failed" if "failed" in verdicts else (
         "suspicious" if "suspicious" in verdicts else "accepted")
@@ -241,7 +194,7 @@ def write_report(result: CalibrationResult, outdir: str | Path,
              f"{sum(result.timings.values()):.1f} s</p>",
              _warnings(result), "<h2>Cameras</h2>", _camera_table(result)]
     section = None
-    for (sec, caption, _, _), png in zip(figures.figures, figures.pngs, strict=True):
+    for (sec, caption, _, _), png in zip(figures, pngs, strict=True):
         if sec != section:
             parts.append(f"<h2>{html.escape(sec)}</h2>")
             section = sec

@@ -177,18 +177,3 @@ def test_report_histograms_from_a_spread_of_person_frames(result):
         assert errors.size == 200 * result.refinement.association.obs.shape[2]
         assert np.nanmedian(errors) == pytest.approx(np.nanmedian(every[name]), rel=0.15)
 
-
-def test_report_plots_from_forked_workers_are_the_ones_drawn_in_process(result, tmp_path):
-    from dataclasses import replace
-
-    from cascalib.report import ReportFigures
-
-    forked = ReportFigures(result, tmp_path / "forked")  # default: two worker processes
-    forked.wait()
-    config = result.config.model_copy(
-        update={"align": result.config.align.model_copy(update={"processes": False})})
-    here = ReportFigures(replace(result, config=config), tmp_path / "here")
-    here.wait()
-    assert len(forked.pngs) == len(result.single_view) + 5  # sync, clocks, 2 rig views, errors
-    for a, b in zip(forked.pngs, here.pngs, strict=True):
-        assert a.read_bytes() == b.read_bytes(), a.name
