@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from cascalib.camera import Camera
 from cascalib.geometry import rodrigues_to_matrix
 from cascalib.nanstats import nanmean
+from cascalib.native_output import points_behind_reported
 from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_pair
 from cascalib.stages.stature import joint_points, metric_scale, moving_groups
 from cascalib.stages.triangulation import triangulate
@@ -372,7 +373,9 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-5)
     try:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        with points_behind_reported([f"camera {c}" for c in range(len(cams))], "multi-view bundle"):
+            result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            cost = 2.0 * graph.error(result) / max(1, n_obs)
     except RuntimeError as exc:  # cheirality or an indeterminate system
         log.debug("multi-view bundle failed: %s", exc)
         return cams, X3, float("inf")
@@ -385,7 +388,7 @@ def bundle_adjust(cams: list[Camera | None], X3: NDArray[np.float64], uv: NDArra
     Xo = np.full_like(X3, np.nan)
     for n in pts:
         Xo[n] = result.atPoint3(P(int(n)))
-    return out, Xo, 2.0 * graph.error(result) / max(1, n_obs)
+    return out, Xo, cost
 
 
 def _spread_instants(groups: PersonGroups, n: int) -> PersonGroups:

@@ -115,12 +115,10 @@ def moving_groups(points: NDArray[np.float64]) -> NDArray[np.bool_]:
     if idx.size < 2:
         return out
     spread = nanmedian_last(np.linalg.norm(points[idx] - centre[idx, None], axis=-1))
-    k = min(STILL_NEIGHBOURS + 1, idx.size)
-    _, near = cKDTree(centre[idx]).query(centre[idx], k=k)
-    for row, cols in enumerate(near):
-        others = points[idx[cols[cols != row]]]
-        d = nanmedian_last(np.linalg.norm(others - points[idx[row]], axis=-1))
-        out[idx[row]] = not np.any(d < STILL_FRACTION * spread[row])
+    _, near = cKDTree(centre[idx]).query(centre[idx], k=min(STILL_NEIGHBOURS + 1, idx.size))
+    d = nanmedian_last(np.linalg.norm(points[idx[near]] - points[idx, None], axis=-1))
+    d[near == np.arange(idx.size)[:, None]] = np.inf  # a group does not repeat itself
+    out[idx] = ~np.any(d < STILL_FRACTION * spread[:, None], axis=1)
     return out
 
 
