@@ -75,11 +75,15 @@ def test_health_and_polls_fast_while_a_large_upload_is_parsed(roomy: Deployment)
     with roomy.client(next_token()) as c:
         submit(c, [("cam0.json", b"{}"), ("cam1.json", b"{}")])  # validators started
         poller.start()
+        t0 = time.perf_counter()
         try:
             r = submit(c, files, {"image_size": "640x480", "fps": 30})
         finally:
+            upload = time.perf_counter() - t0
             done.set()
             poller.join()
     assert r.status_code == 202, r.text
     assert len(latencies) > 20
-    assert np.percentile(latencies, 99) < 0.1 and max(latencies) < 0.5, sorted(latencies)[-5:]
+    # parsed in the API process, one health check would wait for most of the upload; relative
+    # to the upload's own time, so that a loaded machine slows both alike
+    assert max(latencies) < 0.3 * upload, (upload, sorted(latencies)[-5:])
