@@ -80,8 +80,9 @@ def run_scene(preset: str, seed: int, *, errors: bool, with_refine: bool = False
     z_v: list[float] = []
     rot_v: list[float] = []
     rot_z_v: list[float] = []
-    if with_refine:  # Stage V from this result, default settings
-        result_v = refine(tracks, res.calibration, height=1.70, rng=seed)
+    if with_refine:  # Stage V from this result, default settings (as the pipeline runs it)
+        result_v = refine(tracks, res.calibration, height=1.70, rng=seed,
+                          rate_measured=res.rate_measured)
         refined = result_v.calibration
         err_v = compare_calibrations(refined, truth, ground=True)
         rows_v = [r for r in err_v.cameras if r.camera != truth.reference_camera]

@@ -379,7 +379,8 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
                 else cfg.refine)
         refined = refine(tracks, initial, rcfg, height=cfg.height, rng=rng,
                          progress=lambda f: report("refine", f),
-                         fixed_intrinsics=tuple(cfg.known_intrinsics))
+                         fixed_intrinsics=tuple(cfg.known_intrinsics),
+                         rate_measured=aligned.rate_measured)
     report("refine", 1.0)
     timings["refine"] = time.perf_counter() - t0
 

@@ -75,6 +75,10 @@ __all__ = ["AlignConfig", "PairAlignment", "AlignmentResult", "align_cameras"]
 
 logger = logging.getLogger(__name__)
 
+#: A camera's clock rate within this of the declared frame rates' ratio is that ratio: the
+#: pairs whose fits fell back to it give the global clock solve log rates of 1e-12.
+RATE_ROUNDING = 1e-9
+
 
 @dataclass(frozen=True)
 class AlignmentResult:
@@ -104,6 +108,11 @@ class AlignmentResult:
     rig : RigRefinement, optional
         The last step, the rig from the epipolar geometry (``AlignConfig.epipolar_rig``);
         ``calibration`` carries its cameras when it was kept.
+    rate_measured : dict of str to bool
+        Per camera: its frame-rate ratio was measured (pair fits moved it off the declared frame
+        rates' ratio) or not (False, the reference too): stage V's clock search holds a measured
+        rate loosely, a declared one close but lets it go to a mislabelled rate (29.97 fps
+        declared as 30) where its data ask.
     """
 
     calibration: Calibration
@@ -115,6 +124,7 @@ class AlignmentResult:
     diagnostics: dict[str, object] = field(default_factory=dict)
     epipolar: EpipolarClocks | None = None
     rig: RigRefinement | None = None
+    rate_measured: dict[str, bool] = field(default_factory=dict)
 
 
 def _fps(tracks: Tracks, camera: Camera) -> float | None:
@@ -549,7 +559,7 @@ def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks]
             b: NDArray[np.float64], rho: list[float], fps: list[float | None], ref: int,
             cfg: AlignConfig) -> AlignmentResult:
     n = len(cams)
-    out_cams, confidence, flags = [], {}, {}
+    out_cams, confidence, flags, measured = [], {}, {}, {}
     transforms = []
     for c in range(n):
         name = cams[c].name
@@ -574,6 +584,8 @@ def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks]
                                               time_rate=float(a[c] * rho[c]))
         if T[c] is None:
             cam = cam.with_(time_offset=0.0, time_rate=float(rho[c]))
+        # the global clocks keep the declared ratio (to rounding) unless a pair's rate counted
+        measured[name] = bool(c != ref and T[c] is not None and abs(a[c] - 1.0) > RATE_ROUNDING)
         out_cams.append(cam)
         transforms.append(Tc)
         confidence[name] = float(conf)
@@ -582,4 +594,5 @@ def _result(tracks: list[Tracks], cams: list[Camera], ground: list[GroundTracks]
             logger.warning("camera %s: %s", name, ", ".join(fl))
     calib = Calibration(out_cams, reference_camera=cams[ref].name,
                         quality={"alignment": {"confidence": confidence, "flags": flags}})
-    return AlignmentResult(calib, confidence, flags, pairs, ground, transforms)
+    return AlignmentResult(calib, confidence, flags, pairs, ground, transforms,
+                           rate_measured=measured)

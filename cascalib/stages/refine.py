@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
 
 import gtsam
@@ -79,6 +79,11 @@ from cascalib.tracks import Tracks
 __all__ = ["DEFAULT_JOINTS", "RefineConfig", "RefineResult", "refine", "refine_clocks"]
 
 log = logging.getLogger(__name__)
+
+#: Prior sd of a camera's rate around one stage III measured (its pair fits' rates are good to
+#: about this, unlike a declared frame rate's ratio, which is exact unless mislabelled).
+MEASURED_RATE_SD = 1e-3
+
 
 def _select(assoc: Association, sizes: list[tuple[int, int]], n: int,
             joints: NDArray[np.int64], cfg: RefineConfig) -> NDArray[np.int64]:
@@ -154,7 +159,9 @@ def _clock_costs(data: SessionData, groups: Association, cameras: list[Camera],
 def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
                   joints: NDArray[np.int64], height: float, rng: np.random.Generator,
                   anchor_rates: Collection[float] | None = None,
-                  sd: NDArray[np.float64] | None = None) -> list[Camera]:
+                  sd: NDArray[np.float64] | None = None,
+                  declared: Collection[int] = (), measured: Collection[int] = ()
+                  ) -> list[Camera]:
     """Sub-frame time offsets (and rates, ``cfg.time_rates``) of every non-reference camera,
     geometry fixed, re-associating with the new clocks between updates (``cfg.time_iterations``
     at most).
@@ -166,8 +173,11 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
     persons each keeps moves the median by more than a tenth of a frame of one clock does. A
     kept update that moved no offset by ``cfg.time_settle_frames`` ends the updates.
     ``anchor_rates`` (stage III's rates) centre the rates' prior; default the cameras' own.
-    ``sd`` (C,), if given, is filled with the standard error of each offset from the last
-    update's measurement (see :func:`~cascalib.stages.time_refine.refine_offsets`).
+    ``declared``: the cameras whose anchor is their declared frame rate's ratio, which may be
+    a mislabel; ``measured``: those whose anchor stage III measured, their prior
+    :data:`MEASURED_RATE_SD` wide. ``sd`` (C,), if given, is filled with the standard error
+    of each offset from the last update's measurement (both: see
+    :func:`~cascalib.stages.time_refine.refine_offsets`).
     """
     data = clock_check_times(data, cfg.time_check_frames)  # one set for every cost
     for _ in range(cfg.time_iterations):
@@ -176,8 +186,10 @@ def refine_clocks(data: SessionData, cameras: list[Camera], cfg: RefineConfig,
         new = refine_offsets(data.keypoints, data.links, cameras, assoc, data.reference,
                              joints, search=cfg.time_search_frames,
                              max_groups=cfg.time_groups, rates=cfg.time_rates,
-                             rate_sd=cfg.time_rate_sd, anchor_rates=anchor_rates,  # type: ignore[arg-type]
-                             rng=rng, sd=sd)
+                             rate_sd=[MEASURED_RATE_SD if c in measured else cfg.time_rate_sd
+                                      for c in range(len(cameras))],
+                             anchor_rates=anchor_rates,  # type: ignore[arg-type]
+                             declared=tuple(declared), rng=rng, sd=sd)
         cost, new_cost = _clock_costs(data, groups, cameras, new, joints)
         kept = new_cost < cost * (1.0 + cfg.time_tie_tolerance)
         log.info("time offsets: joint reprojection %.4f -> %.4f px (%s)", cost, new_cost,
@@ -268,6 +280,8 @@ class _Run:
     progress: _Progress
     solves: list[SolveInfo] = field(default_factory=list)
     clock_sd: NDArray[np.float64] | None = None  # of the last clock update's offsets (frames)
+    declared: frozenset[int] = frozenset()  # cameras at their declared rate (stage III)
+    measured: frozenset[int] = frozenset()  # cameras whose rate stage III measured
 
     def clocks(self, cameras: list[Camera]) -> list[Camera]:
         """:func:`refine_clocks` of ``cameras`` (or them unchanged with ``refine_time`` off)."""
@@ -276,7 +290,8 @@ class _Run:
         self.clock_sd = np.full(len(cameras), np.nan)
         with timed("clock_updates"):
             return refine_clocks(self.data, cameras, self.cfg, self.joints, self.height,
-                                 self.rng, anchor_rates=self.anchor_rates, sd=self.clock_sd)
+                                 self.rng, anchor_rates=self.anchor_rates, sd=self.clock_sd,
+                                 declared=self.declared, measured=self.measured)
 
 
 @dataclass
@@ -487,7 +502,8 @@ def _lens_floor(pp_se: NDArray[np.float64], cameras: list[Camera], fixed: Collec
 def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | None = None, *,
            height: float = 1.70, rng: np.random.Generator | int | None = None,
            progress: Callable[[float], None] | None = None,
-           fixed_intrinsics: Collection[str] = ()) -> RefineResult:
+           fixed_intrinsics: Collection[str] = (),
+           rate_measured: Mapping[str, bool] | None = None) -> RefineResult:
     """Refine all cameras (intrinsics, extrinsics, time offsets) and triangulate every frame.
 
     Parameters
@@ -508,6 +524,13 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
     fixed_intrinsics : collection of str
         Cameras whose intrinsics in ``initial`` (K and distortion) are known: they are held in
         every solve and returned exactly as given.
+    rate_measured : mapping of str to bool, optional
+        Per camera, whether stage III measured its rate in ``initial`` (True) or kept its
+        declared frame rate's ratio (False; ``AlignmentResult.rate_measured``). The clock
+        search holds a declared ratio close (``time_rate_sd``) but lets it go to a mislabelled
+        rate (29.97 fps declared as 30) where the data ask, and a measured one only loosely
+        (:data:`MEASURED_RATE_SD`): stage III's pair fits measure a rate to no better than
+        that. Cameras not named: held close, no mislabel.
 
     Returns
     -------
@@ -535,7 +558,8 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
 
     t0 = time.perf_counter()
     with account() as spent:
-        res = _refine_or_retry(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics)
+        res = _refine_or_retry(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics,
+                               rate_measured or {})
     if spent is None:  # a retry inside refine(): the caller's tally has its seconds
         return res
     total = time.perf_counter() - t0
@@ -546,12 +570,14 @@ def refine(tracks: list[Tracks], initial: Calibration, config: RefineConfig | No
 
 def _refine_or_retry(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig,
                      height: float, rng: np.random.Generator,
-                     monotone: Callable[[float], None], fixed_intrinsics: Collection[str]
+                     monotone: Callable[[float], None], fixed_intrinsics: Collection[str],
+                     rate_measured: Mapping[str, bool]
                      ) -> RefineResult:
     """:func:`refine`'s work: the rig, or, where a non-reference camera sees none of the
     person-frames, the rig without it."""
     try:
-        return _refine_rig(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics)
+        return _refine_rig(tracks, initial, cfg, height, rng, monotone, fixed_intrinsics,
+                           rate_measured)
     except RefinementFailed as exc:
         bad = exc.camera
         if bad not in initial.names or bad == initial.reference_camera or len(initial) <= 2:
@@ -562,7 +588,8 @@ def _refine_or_retry(tracks: list[Tracks], initial: Calibration, cfg: RefineConf
                            quality=dict(initial.quality), world=initial.world)
         res = refine([t for t in tracks if t.camera != bad], rest, cfg, height=height, rng=rng,
                      progress=monotone,
-                     fixed_intrinsics=[n for n in fixed_intrinsics if n != bad])
+                     fixed_intrinsics=[n for n in fixed_intrinsics if n != bad],
+                     rate_measured=rate_measured)
         return with_failed_camera(res, initial, bad, f"left out of the refinement (kept as "
                                   f"stages I-IV left it): it {exc.message}; check its time "
                                   "offset and pose from stages II-IV")
@@ -570,7 +597,8 @@ def _refine_or_retry(tracks: list[Tracks], initial: Calibration, cfg: RefineConf
 
 def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, height: float,
                 rng: np.random.Generator, progress: Callable[[float], None],
-                fixed_intrinsics: Collection[str]) -> RefineResult:
+                fixed_intrinsics: Collection[str], rate_measured: Mapping[str, bool]
+                ) -> RefineResult:
     """:func:`refine` of every camera of ``initial``, or RefinementFailed."""
     min_rounds, max_rounds = _round_limits(cfg)
     # steps: 3 per round, the two intrinsics passes, the reconstruction
@@ -584,7 +612,11 @@ def _refine_rig(tracks: list[Tracks], initial: Calibration, cfg: RefineConfig, h
     rounds = replace(data, times=data.times[::max(1, -(-len(data.times) // cfg.round_frames))])
     run = _Run(data, rounds, cfg, height, np.array([CANONICAL_INDEX[n] for n in cfg.joints]),
                frozenset(initial.names.index(n) for n in fixed_intrinsics),
-               [c.time_rate for c in initial.cameras], rng, prog)
+               [c.time_rate for c in initial.cameras], rng, prog,
+               declared=frozenset(i for i, n in enumerate(initial.names)
+                                  if n in rate_measured and not rate_measured[n]),
+               measured=frozenset(i for i, n in enumerate(initial.names)
+                                  if rate_measured.get(n, False)))
     fit = _solve_rounds(run, list(initial.cameras), least=min_rounds, most=max_rounds,
                         refined=False)
     # a lens the start cameras carry (a calibration with distortion given back) was held by

@@ -64,6 +64,14 @@ __all__ = ["previous_slots", "refine_offsets", "regroup", "track_velocity"]
 
 log = logging.getLogger(__name__)
 
+#: Factors of a camera's rate ratio that a wrongly declared frame rate gives: NTSC rates
+#: (29.97, 59.94, 23.976 fps, ...) are the nominal ones times 1000/1001, and recordings at one
+#: are often labelled with the other (a phone's 29.97 fps video declared 30).
+MISLABEL_FACTORS = (1000.0 / 1001.0, 1001.0 / 1000.0)
+#: Prior odds of a declared rate against a mislabel: the clock search moves a camera's rate
+#: prior to a mislabel only where the data favour it by more.
+MISLABEL_ODDS = 100.0
+
 
 def previous_slots(links: NDArray[np.int64]) -> NDArray[np.int64]:
     """Inverse of :func:`~cascalib.stages.track_interpolation.frame_links`: ``prev[k, q]`` is
@@ -208,8 +216,9 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
                    cameras: list[Camera], assoc: Association, reference: int, joints:
                    NDArray[np.int64], *, search: float = 1.0, max_groups: int = 6000,
                    cap_px: float = 30.0, huber_px: float = 3.0, rates: bool = False,
-                   rate_sd: float = 1e-4, anchor_rates: Sequence[float] | None = None,
-                   rng: np.random.Generator | None = None,
+                   rate_sd: float | Sequence[float] = 1e-4,
+                   anchor_rates: Sequence[float] | None = None,
+                   declared: Sequence[int] = (), rng: np.random.Generator | None = None,
                    sd: NDArray[np.float64] | None = None) -> list[Camera]:
     """Refine the time offset (and frame-rate ratio) of every non-reference camera.
 
@@ -243,14 +252,19 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
         Refine the frame-rate ratios too (else stage III's are kept). Off here so that a
         caller gets the plain offset search; the pipeline turns it on
         (``RefineConfig.time_rates``, with the measurements).
-    rate_sd : float
-        Prior sd of the relative rate around ``anchor_rates`` (stage III's rates are good to
-        about 1e-4). Where the people's motion determines the rate better (the scatter of time
-        blocks, see :func:`_block_line`), the data outweigh it; over a short recording,
-        whose ends a rate error hardly moves, the rate stays at the anchor.
+    rate_sd : float or sequence of float
+        Prior sd of the relative rate around ``anchor_rates``, or one per camera (a declared
+        frame rate's ratio is exact unless mislabelled, a rate stage III measured is not).
+        Where the people's motion determines the rate better (the scatter of time blocks, see
+        :func:`_block_line`), the data outweigh it; over a short recording, whose ends a rate
+        error hardly moves, the rate stays at the anchor.
     anchor_rates : sequence of float, optional
         The rates the prior is centred on, one per camera: stage III's, so that repeated
         updates cannot wander off them by noise; default the cameras' current rates.
+    declared : sequence of int
+        Cameras whose anchor rate is their declared frame rate's ratio (stage III did not
+        measure one): their rate prior moves to a mislabelled rate (:data:`MISLABEL_FACTORS`)
+        where the data favour it, as a camera declared at 30 fps that records 29.97 needs.
     sd : ndarray, shape (C,), optional
         Filled with the standard error (reference frames) of each camera's new
         ``time_offset`` from the scatter of time blocks (:func:`_block_line`; a rate the data
@@ -275,15 +289,19 @@ def refine_offsets(keypoints: list[NDArray[np.float64]], links: list[NDArray[np.
     seeds = rng.integers(2**62, size=n_cams)  # one stream per camera: same result in any order
 
     anchor = [c.time_rate for c in cameras] if anchor_rates is None else list(anchor_rates)
+    rate_sds = np.broadcast_to(np.asarray(rate_sd, dtype=float), (n_cams,))
 
     def measure(c: int
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
         # the rate term that brings the camera back to its anchor rate
         back = half * (anchor[c] / cameras[c].time_rate - 1.0)
+        mislabels = [half * (anchor[c] * f / cameras[c].time_rate - 1.0)
+                     for f in MISLABEL_FACTORS] if c in declared else []
         return _measure(keypoints[c], links[c], cameras, c, assoc, joints, search=search,
                         max_groups=max_groups, cap_px=cap_px, huber_px=huber_px,
-                        centre=(t_mid, half), rate_prior=(back, rate_sd * half if rates else 0.0),
-                        rng=np.random.default_rng(seeds[c]))
+                        centre=(t_mid, half),
+                        rate_prior=(back, rate_sds[c] * half if rates else 0.0),
+                        rng=np.random.default_rng(seeds[c]), mislabels=mislabels)
 
     others = [c for c in range(n_cams) if c != reference]
     # numpy releases the GIL in the sorts and products that dominate: cameras in parallel, one
@@ -350,14 +368,16 @@ def _decouple(change: NDArray[np.float64], coupling: NDArray[np.float64],
 def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: list[Camera],
              c: int, assoc: Association, joints: NDArray[np.int64], *, search: float,
              max_groups: int, cap_px: float, huber_px: float, centre: tuple[float, float],
-             rate_prior: tuple[float, float], rng: np.random.Generator
+             rate_prior: tuple[float, float], rng: np.random.Generator,
+             mislabels: Sequence[float] = ()
              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
     """Best clock change ``(delta, rho)`` of camera ``c`` against the others (see the module
     docstring; ``rate_prior`` is the prior mean and sd of ``rho`` in frames, and ``rho`` stays
     0 when the sd is 0 or the motion does not span the recording), the coupling blocks of
     :func:`_decouple`'s row of camera ``c``, and the covariance (2, 2) of ``(delta, rho)``
     (:func:`_block_line`; a rate the data do not determine is as uncertain as the prior
-    says)."""
+    says). ``mislabels``: the ``rho`` of the rates a mislabelled frame rate would give (see
+    :func:`_mislabel_anchor`), which the prior moves to where the data clearly ask for one."""
     rho_prior, rate_sd = rate_prior
     n_cams = len(cameras)
     others = [i for i in range(n_cams) if i != c]
@@ -489,10 +509,14 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     # association slips and geometry errors that change as people move are correlated over
     # seconds; the scatter of the offsets of time blocks about the fitted line shows them
     kappa = float(np.clip(slope[0, 0] / hess[0, 0], 0.05, 1.0)) if hess[0, 0] > 0 else 1.0
-    cov = _block_line(grad_g, info, u[:, 0, 0], kappa)
+    cov, line = _block_line(grad_g, info, u[:, 0, 0], kappa)
     if free[1]:
         # the rate is weighed against the anchor's (prior sd rate_sd) by it
         se = float(np.sqrt(max(cov[1, 1], 0.0)))
+        moved = _mislabel_anchor(cam.name, rho_prior, mislabels, t1[1] + line[1], se)
+        if moved != rho_prior:  # a mislabel: the data's rate (not the one pulled toward
+            # the declared rate by the solve's prior), shrunk toward the mislabel instead
+            t1[1], rho_prior = t1[1] + line[1], moved
         shrink = rate_sd**2 / (rate_sd**2 + se**2)
         t1[1] = rho_prior + shrink * (t1[1] - rho_prior)
         cov = (cov * np.array([[1.0, shrink], [shrink, shrink]])  # the shrunk estimate's
@@ -519,8 +543,25 @@ def _measure(keypoints: NDArray[np.float64], links: NDArray[np.int64], cameras: 
     return t1, blocks, cov
 
 
+def _mislabel_anchor(name: str, rho_prior: float, mislabels: Sequence[float], rho_data: float,
+                     se: float) -> float:
+    """The rate prior's centre: ``rho_prior`` (the declared rate), or the mislabel of
+    ``mislabels`` (``rho``, frames) that the data's rate ``rho_data`` (standard error ``se``)
+    favour over it by the odds :data:`MISLABEL_ODDS`."""
+    if not mislabels or not (np.isfinite(rho_data) and np.isfinite(se) and se > 0):
+        return rho_prior
+    best = min(mislabels, key=lambda r: abs(rho_data - r))
+    log_ratio = ((rho_data - rho_prior) ** 2 - (rho_data - best) ** 2) / (2 * se**2)
+    moved = log_ratio > np.log(MISLABEL_ODDS)
+    (log.info if moved else log.debug)(
+        "camera %s: rate %+.3f frames (se %.3f) against the declared %+.3f and the mislabel "
+        "%+.3f: log likelihood ratio %.1f", name, rho_data, se, rho_prior, best, log_ratio)
+    return float(best) if moved else rho_prior
+
+
 def _block_line(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.float64],
-                kappa: float, n_blocks: int = 8) -> NDArray[np.float64]:
+                kappa: float, n_blocks: int = 8
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Covariance (2, 2) of the clock change ``(delta, rho)`` (frames; ``rho`` over half the
     recording) from the scatter of time blocks.
 
@@ -530,9 +571,10 @@ def _block_line(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.
     at mid-recording as its intercept and the rate as its slope, and the blocks' scatter about
     it gives their covariance: association slips and geometry errors that change as people move
     are correlated over seconds, which the nominal information (every joint independent) does
-    not see. Infinite with fewer than four blocks that carry information.
+    not see. Infinite with fewer than four blocks that carry information. Also returns the line
+    (2,): the further clock change ``(delta, rho)`` the blocks ask for (NaN where infinite).
     """
-    inf = np.full((2, 2), np.inf)
+    inf = np.full((2, 2), np.inf), np.full(2, np.nan)
     b = np.clip(((u + 1.0) * 0.5 * n_blocks).astype(int), 0, n_blocks - 1)
     g = np.bincount(b, jr, n_blocks)
     h = np.bincount(b, jj, n_blocks)
@@ -546,6 +588,6 @@ def _block_line(jr: NDArray[np.float64], jj: NDArray[np.float64], u: NDArray[np.
     resid = d * np.sqrt(w) - A @ coef
     sigma2 = float(resid @ resid) / (keep.sum() - 2)
     try:
-        return sigma2 * np.linalg.inv(A.T @ A)
+        return sigma2 * np.linalg.inv(A.T @ A), coef
     except np.linalg.LinAlgError:
         return inf
