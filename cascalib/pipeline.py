@@ -25,6 +25,7 @@ from cascalib.config import CalibrationConfig
 from cascalib.errors import EstimationFailed, InputError
 from cascalib.poses import Poses3D
 from cascalib.stages.align import AlignmentResult, align_cameras
+from cascalib.stages.joint_clocks import checked_clocks, pair_starts
 from cascalib.stages.multiview_path import (
     MultiviewInitial,
     known_clocks,
@@ -270,13 +271,16 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
     clocks = known_clocks(tracks, cfg.synchronized)
     if not stage_i.failures:
         try:
-            return _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
+            aligned = _stages_ii_iv(tracks, cfg, stage_i, rng, progress)
         except EstimationFailed as exc:
             if clocks is None:
                 raise
             log.warning("stages II-IV: %s; the cameras are placed from the people's joints "
                         "instead", exc)
             return multiview_initial(tracks, cfg, hints, clocks, rng)
+        if clocks is not None:
+            return aligned
+        return _joint_checked(tracks, cfg, aligned, hints, rng)
     if clocks is not None:
         return multiview_initial(tracks, cfg, hints, clocks, rng)
     found, hints, unclocked = _advised_clocks(tracks, cfg, stage_i, rng, progress)
@@ -291,6 +295,36 @@ def _start(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
     return start
 
 
+def _joint_clocks(tracks: Sequence[Tracks], aligned: AlignmentResult, cfg: CalibrationConfig
+                  ) -> tuple[list[tuple[float, float]], list[str]]:
+    """Stages II-IV's clocks, with those the people's joints put elsewhere replaced
+    (:func:`~cascalib.stages.joint_clocks.checked_clocks`), and the cameras so moved. The
+    check draws from its own random stream: where it moves nothing, the run is as without it."""
+    clocks = [(c.time_offset, c.time_rate) for c in aligned.calibration]
+    moved = checked_clocks(tracks, clocks, aligned.flags, aligned.confidence,
+                           pair_starts(aligned.pairs, [t.camera for t in tracks]),
+                           np.random.default_rng(cfg.seed))
+    return [(moved.get(t.camera, o), r) for t, (o, r) in zip(tracks, clocks, strict=True)], \
+        list(moved)
+
+
+def _joint_checked(tracks: Sequence[Tracks], cfg: CalibrationConfig, aligned: AlignmentResult,
+                   hints: dict[str, float], rng: np.random.Generator
+                   ) -> AlignmentResult | MultiviewInitial:
+    """Stages II-IV's result, or the multi-view start on the joints' clocks where the joints
+    put a camera's clock elsewhere: its ground alignment was made at the wrong one."""
+    clocks, moved = _joint_clocks(tracks, aligned, cfg)
+    if not moved:
+        return aligned
+    log.warning("the people's joints put the clock of %s away from stage IV's: the cameras "
+                "are placed from the joints on their clocks", ", ".join(moved))
+    try:
+        return multiview_initial(tracks, cfg, hints, rebase_clocks(clocks), rng)
+    except EstimationFailed as exc:
+        log.warning("multi-view start: %s; stages II-IV's result is kept", exc)
+        return aligned
+
+
 def _advised_clocks(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _StageI,
                     rng: np.random.Generator, progress: Callable[[float], None]
                     ) -> tuple[dict[str, tuple[float, float]], dict[str, float], dict[str, str]]:
@@ -302,7 +336,8 @@ def _advised_clocks(tracks: Sequence[Tracks], cfg: CalibrationConfig, stage_i: _
     if len(with_plane) < 2:
         return {}, {}, {}
     rough = _stages_ii_iv(with_plane, cfg, stage_i, rng, progress)
-    found = {c.name: (c.time_offset, c.time_rate) for c in rough.calibration}
+    found = dict(zip([c.name for c in rough.calibration], _joint_clocks(with_plane, rough,
+                                                                        cfg)[0], strict=True))
     unclocked = {}
     for t in tracks:
         if t.camera in found:

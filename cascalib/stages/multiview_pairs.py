@@ -15,6 +15,7 @@ sec. 11.4.3 (Sampson distance). Barath, D. et al. MAGSAC++, CVPR 2020.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -46,6 +47,8 @@ MAX_CANDIDATES = 20000
 STATIC_PX = 0.5
 #: Earlier detections (nearest by centroid) each detection is compared with.
 STATIC_NEIGHBOURS = 8
+#: Detections compared at once by :func:`repeats` (bounds its memory).
+REPEAT_BLOCK = 2000
 
 
 @dataclass(frozen=True)
@@ -118,12 +121,19 @@ def repeats(v: NDArray[np.float64]) -> NDArray[np.bool_]:
         centre = np.nanmean(xy[t, p], axis=1)
     k = min(STATIC_NEIGHBOURS + 1, t.size)
     _, near = cKDTree(centre).query(centre, k=k, distance_upper_bound=4 * STATIC_PX)
-    for row, cols in enumerate(near.reshape(t.size, -1)):
-        earlier = cols[(cols < t.size) & (t[np.minimum(cols, t.size - 1)] < t[row])]
-        if earlier.size:
-            d = np.linalg.norm(xy[t[earlier], p[earlier]] - xy[t[row], p[row]], axis=-1)
-            with np.errstate(all="ignore"):
-                out[t[row], p[row]] = bool(np.any(np.nanmedian(d, axis=1) < STATIC_PX))
+    near = near.reshape(t.size, -1)
+    # the rows whose centre has an earlier neighbour, compared in blocks (one nanmedian per
+    # block: a call per detection made this the clock scans' slowest step)
+    cols = np.minimum(near, t.size - 1)
+    earlier = (near < t.size) & (t[cols] < t[:, None])
+    rows = np.flatnonzero(earlier.any(axis=1))
+    for block in np.array_split(rows, max(1, rows.size // REPEAT_BLOCK)):
+        c = cols[block]
+        d = np.linalg.norm(xy[t[c], p[c]] - xy[t[block], p[block]][:, None], axis=-1)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            still = np.nanmedian(d, axis=2) < STATIC_PX
+        out[t[block], p[block]] = np.any(still & earlier[block], axis=1)
     return out
 
 
