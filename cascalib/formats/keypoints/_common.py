@@ -31,7 +31,9 @@ logger = logging.getLogger(__name__)
 
 _fast_loads: Callable[[bytes], Any] | None
 try:  # optional: parses a large keypoint file several times faster than the json module
-    from orjson import loads as _fast_loads  # type: ignore[import-not-found, unused-ignore]
+    import orjson  # type: ignore[import-not-found, unused-ignore]
+
+    _fast_loads = orjson.loads
 except ImportError:  # pragma: no cover - depends on what is installed
     _fast_loads = None
 
