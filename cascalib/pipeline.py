@@ -33,6 +33,7 @@ from cascalib.stages.multiview_path import (
     rebase_clocks,
     refine_or_start,
     scan_clock,
+    synchronized_rates,
 )
 from cascalib.stages.multiview_start import focal_range
 from cascalib.stages.refine import RefineResult, refine
@@ -233,9 +234,8 @@ def _apply_known(cameras: list[Camera], cfg: CalibrationConfig) -> list[Camera]:
 def _synchronized(calib: Calibration, tracks: Sequence[Tracks]) -> Calibration:
     """Known synchronisation: offset 0, rate = reference fps / camera fps."""
     ref = next(t for t in tracks if t.camera == calib.reference_camera)
-    fps_ref = ref.fps or 1.0
-    cams = [c.with_(time_offset=0.0, time_rate=fps_ref / (t.fps or fps_ref))
-            for c, t in zip(calib.cameras, tracks, strict=True)]
+    cams = [c.with_(time_offset=0.0, time_rate=rate)
+            for c, rate in zip(calib.cameras, synchronized_rates(tracks, ref), strict=True)]
     return Calibration(cams, calib.reference_camera, dict(calib.quality), calib.world)
 
 
@@ -420,7 +420,7 @@ def calibrate(tracks: Sequence[Tracks], config: CalibrationConfig | None = None,
     timings["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    fps_ref = float(tracks[0].fps or 1.0 / np.nanmedian(np.diff(tracks[0].frame_times())))
+    fps_ref = tracks[0].frame_rate() or 1.0
     poses = Poses3D(refined.poses3d, refined.times, fps_ref, refined.track_ids,
                     refined.residuals)
     report("triangulate", 1.0)

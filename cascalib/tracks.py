@@ -196,6 +196,17 @@ class Tracks:
         """One canonical joint, shape (n_frames, n_persons, 3); NaN where missing or unmapped."""
         return self.canonical()[..., CANONICAL_INDEX[name], :]
 
+    def frame_rate(self) -> float | None:
+        """Frames per second: the given ``fps``, else one over the timestamps' median frame
+        interval; None when neither is known."""
+        if self.fps is not None:
+            return float(self.fps)
+        if self.timestamps is not None:
+            d = np.diff(self.timestamps[np.isfinite(self.timestamps)])
+            if d.size and np.median(d) > 0:
+                return float(1.0 / np.median(d))
+        return None
+
     def frame_times(self) -> NDArray[np.float64]:
         """Time of each frame in seconds: the timestamps when known, else ``f / fps``.
 

@@ -97,6 +97,14 @@ def test_tracks_shape_and_views():
     np.testing.assert_allclose(t.frame_times(), np.arange(5) / 30)
 
 
+def test_frame_rate_is_the_given_fps_else_the_timestamps_median_interval():
+    assert _tracks(fps=25.0).frame_rate() == 25.0
+    stamps = 10.0 + np.array([0.0, 1 / 30, 2 / 30, 3 / 30 + 0.02, 4 / 30 + 0.02])  # one late frame
+    assert _tracks(timestamps=stamps).frame_rate() == pytest.approx(30.0)
+    assert _tracks(fps=60.0, timestamps=stamps).frame_rate() == 60.0
+    assert _tracks().frame_rate() is None
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda kp: kp.__setitem__((2, 0, 3, 0), np.inf), "frame 2.*infinite"),
     (lambda kp: kp.__setitem__((3, 1, 0, 2), -0.5), "frame 3.*negative confidence"),

@@ -128,13 +128,8 @@ class AlignmentResult:
 
 
 def _fps(tracks: Tracks, camera: Camera) -> float | None:
-    if tracks.fps is not None:
-        return float(tracks.fps)
-    if tracks.timestamps is not None:
-        d = np.diff(tracks.timestamps[np.isfinite(tracks.timestamps)])
-        if d.size:
-            return float(1.0 / np.median(d))
-    return camera.fps
+    rate = tracks.frame_rate()
+    return rate if rate is not None else camera.fps
 
 
 def _check_inputs(tracks: list[Tracks], cams: list[Camera], reference: str | int | None) -> int:

@@ -39,7 +39,7 @@ from cascalib.stages.track_interpolation import frame_links, interpolate_views
 from cascalib.tracks import Tracks
 
 __all__ = ["MultiviewInitial", "known_clocks", "multiview_initial", "rebase_clocks",
-           "refine_or_start", "start_result", "WORLD_NOTE"]
+           "refine_or_start", "start_result", "synchronized_rates", "WORLD_NOTE"]
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,13 @@ def _linear_clock(times: NDArray[np.float64]) -> tuple[float, float]:
     return float(start), float(period)
 
 
+def synchronized_rates(tracks: Sequence[Tracks], reference: Tracks) -> list[float]:
+    """Each camera's clock rate on ``reference``'s frames when they start together: the ratio
+    of frame rates (1 where a rate is unknown)."""
+    fps_ref = reference.frame_rate() or 1.0
+    return [fps_ref / (t.frame_rate() or fps_ref) for t in tracks]
+
+
 def known_clocks(tracks: Sequence[Tracks], synchronized: bool
                  ) -> list[tuple[float, float]] | None:
     """Each camera's (time offset, rate) on the first camera's clock when it is known without
@@ -86,8 +93,7 @@ def known_clocks(tracks: Sequence[Tracks], synchronized: bool
     file share. None otherwise."""
     ref = tracks[0]
     if synchronized:
-        fps_ref = ref.fps or 1.0
-        return [(0.0, fps_ref / (t.fps or fps_ref)) for t in tracks]
+        return [(0.0, rate) for rate in synchronized_rates(tracks, ref)]
     one_file = len({t.source for t in tracks}) == 1 and ref.source is not None
     if not one_file or any(t.timestamps is None for t in tracks):
         return None

@@ -72,11 +72,7 @@ def prepare(tracks: list[Tracks], calibration: Calibration) -> SessionData:
              for t, cam in zip(ordered, calibration.cameras, strict=True)]
     ref = calibration.names.index(calibration.reference_camera)  # type: ignore[arg-type]
     times = np.arange(kps[ref].shape[0], dtype=np.float64)
-    rt = ordered[ref]
-    fps = rt.fps
-    if not fps and rt.timestamps is not None and len(rt.timestamps) > 1:
-        fps = 1.0 / float(np.nanmedian(np.diff(rt.frame_times())))
-    return SessionData(kps, links, sizes, times, ref, float(fps or 1.0))
+    return SessionData(kps, links, sizes, times, ref, ordered[ref].frame_rate() or 1.0)
 
 
 #: Frame links of each Tracks met (weakly held): stage IV's epipolar clock step and stage V

@@ -218,7 +218,7 @@ def _ankle_motion(tracks: Tracks, kp: F64, f_idx: NDArray[np.int64], p_idx: NDAr
         times: F64 | None = tracks.frame_times()
     except InputError:  # neither timestamps nor a frame rate: frames of 25 fps
         times = None
-    fps = tracks.fps or 25.0
+    fps = tracks.frame_rate() or 25.0
     k = max(1, int(round(0.5 * span_s * fps)))
     n_frames = kp.shape[0]
     mid = _mid(kp, "left_ankle", "right_ankle")                                # (F, P, 2)
