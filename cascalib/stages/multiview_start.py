@@ -41,7 +41,7 @@ from cascalib.geometry import rodrigues_to_matrix
 from cascalib.nanstats import nanmean
 from cascalib.native_output import points_behind_reported
 from cascalib.stages.multiview_pairs import MIN_CONFIDENCE, PairMatches, match_pair
-from cascalib.stages.stature import joint_points, metric_scale, moving_groups
+from cascalib.stages.stature import joint_points, metric_scale, people_who_move
 from cascalib.stages.triangulation import triangulate
 
 __all__ = ["MultiviewStart", "PersonGroups", "WorldFrame", "join_matches", "multiview_start",
@@ -649,9 +649,7 @@ def world_frame(points: NDArray[np.float64], joints: NDArray[np.int64], cameras:
     ValueError
         When neither trunk nor head, or no limb, is seen by two cameras.
     """
-    moving = moving_groups(points)
-    if moving.sum() >= MIN_UP_GROUPS:
-        points = points[moving]
+    points = people_who_move(points)
     up, up_from = _up(points, joints)
     reference = cameras[0]
     fwd = reference.R[2] - up * (reference.R[2] @ up)

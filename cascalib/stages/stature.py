@@ -25,7 +25,7 @@ from cascalib.nanstats import nanmean, nanmedian_last
 from cascalib.skeletons import CANONICAL_INDEX
 
 __all__ = ["CHAIN_FRACTION", "SEGMENT_FRACTIONS", "chain_statures", "joint_points",
-           "metric_scale", "moving_groups", "rescale_to_statures"]
+           "metric_scale", "moving_groups", "people_who_move", "rescale_to_statures"]
 
 #: Segment lengths as fractions of standing height (Drillis & Contini 1966, joint centres):
 #: the bones that carry the metric scale where no legs are seen.
@@ -122,6 +122,13 @@ def moving_groups(points: NDArray[np.float64]) -> NDArray[np.bool_]:
     return out
 
 
+def people_who_move(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The groups of ``points`` (G, J, 3) that :func:`moving_groups` keeps, or all of them where
+    fewer than :data:`MIN_GROUPS` would remain (everyone holds still)."""
+    moving = moving_groups(points)
+    return points[moving] if moving.sum() >= MIN_GROUPS else points
+
+
 def rescale_to_statures(cameras: list[Camera], points: NDArray[np.float64], height: float
                         ) -> tuple[list[Camera], NDArray[np.float64], float]:
     """Cameras and canonical joints scaled about the world origin so that the moving people's
@@ -142,8 +149,7 @@ def rescale_to_statures(cameras: list[Camera], points: NDArray[np.float64], heig
     cameras, points, factor
     """
     joints = np.arange(points.shape[1])
-    moving = moving_groups(points)
-    statures = chain_statures(points[moving] if moving.sum() >= MIN_GROUPS else points, joints)
+    statures = chain_statures(people_who_move(points), joints)
     statures = statures[np.isfinite(statures)]
     if statures.size < MIN_GROUPS:
         return cameras, points, 1.0
