@@ -142,7 +142,7 @@ def joint_clock(reference: Tracks, ref_clock: tuple[float, float], other: Tracks
     else the lowest on grids within :data:`WINDOW_S` of ``clock``'s offset and within
     :data:`START_WINDOW_S` of each of ``starts``. None where the two cameras never share
     :data:`MIN_GROUPS` person pairs."""
-    fps = reference.fps or 1.0 / float(np.nanmedian(np.diff(reference.frame_times())))
+    fps = reference.frame_rate() or 1.0
     costs = _Costs(reference, ref_clock, other, clock[1], rng)
     if starts is None:
         at = [costs.descend(clock[0], DESCENT_STEP, DESCENT_REACH_S * fps)]

@@ -15,7 +15,6 @@ sec. 11.4.3 (Sampson distance). Barath, D. et al. MAGSAC++, CVPR 2020.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import cv2
@@ -24,6 +23,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from cascalib.nanstats import nanmedian_last
 from cascalib.stages.epipolar_sync import fit_fundamental, sampson_distance
 
 __all__ = ["PairMatches", "match_pair", "MIN_CONFIDENCE"]
@@ -130,9 +130,7 @@ def repeats(v: NDArray[np.float64]) -> NDArray[np.bool_]:
     for block in np.array_split(rows, max(1, rows.size // REPEAT_BLOCK)):
         c = cols[block]
         d = np.linalg.norm(xy[t[c], p[c]] - xy[t[block], p[block]][:, None], axis=-1)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            still = np.nanmedian(d, axis=2) < STATIC_PX
+        still = nanmedian_last(d) < STATIC_PX
         out[t[block], p[block]] = np.any(still & earlier[block], axis=1)
     return out
 
